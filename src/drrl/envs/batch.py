@@ -1,0 +1,84 @@
+"""The one batched-environment interface: Gymnasium's ``VectorEnv``.
+
+drrl's own environments are native vector envs (``gymnasium.make_vec`` returns them); any other Gymnasium env with
+a 1-D Box observation and a Box or Discrete action is batched by Gymnasium's ``SyncVectorEnv``, which, unlike some
+native vector envs of Gymnasium, takes one reset seed per sub-environment. ``ActionMap`` turns
+a policy's raw outputs into actions of the env's action space.
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import torch
+from gymnasium import spaces
+from gymnasium.vector import VectorEnv
+
+ENV_ALIASES = {"cartpole": "drrl/CartPole-v0"}
+
+
+def resolve_env_id(name: str) -> str:
+    """The Gymnasium id for ``name`` (an alias such as ``cartpole``, or any registered id)."""
+    env_id = ENV_ALIASES.get(name, name)
+    if env_id not in gymnasium.registry:
+        aliases = ", ".join(f"{alias} ({target})" for alias, target in ENV_ALIASES.items())
+        known = ", ".join(sorted(gymnasium.registry))
+        raise ValueError(f"unknown environment {name!r}; use an alias: {aliases}, or a registered Gymnasium id: {known}")
+    return env_id
+
+
+def make_batch_env(name: str, num_envs: int) -> VectorEnv:
+    """``num_envs`` copies of env ``name`` stepping together; raises before any work on unsupported spaces."""
+    env_id = resolve_env_id(name)
+    mode = "vector_entry_point" if env_id.startswith("drrl/") else "sync"
+    env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode)
+    try:
+        observation_size(env.single_observation_space)
+        ActionMap(env.single_action_space)
+    except ValueError:
+        env.close()
+        raise
+    return env
+
+
+def observation_size(space: spaces.Space) -> int:
+    """The length of a 1-D Box observation; anything else is refused with a reason."""
+    if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+        raise ValueError(f"unsupported observation space {space}; drrl needs a 1-D Box")
+    return space.shape[0]
+
+
+class ActionMap:
+    """Raw policy outputs (N, size) → actions of a Box or Discrete space.
+
+    Box with finite bounds: each output is clipped to [-1, 1] and scaled onto [low, high]. Box without bounds: passed
+    through. Discrete(n): the policy has n outputs and the action is their argmax.
+    """
+
+    def __init__(self, space: spaces.Space):
+        if isinstance(space, spaces.Discrete):
+            self.size = int(space.n)
+            self._start = int(space.start)
+            self._discrete = True
+            return
+        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+            raise ValueError(f"unsupported action space {space}; drrl needs a 1-D Box or a Discrete")
+        self.size = space.shape[0]
+        self._discrete = False
+        self._dtype = space.dtype
+        bounded = bool(np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high)))
+        if bounded:
+            self._half_range = torch.as_tensor((space.high - space.low) / 2, dtype=torch.float32)
+            self._middle = torch.as_tensor((space.high + space.low) / 2, dtype=torch.float32)
+            self._unit = bool(np.all(space.low == -1) and np.all(space.high == 1))
+        self._bounded = bounded
+
+    def __call__(self, raw: torch.Tensor) -> np.ndarray:
+        if self._discrete:
+            return (raw.argmax(dim=-1) + self._start).cpu().numpy()
+        if not self._bounded:
+            return raw.detach().cpu().numpy().astype(self._dtype, copy=False)
+        action = raw.detach().clamp(-1.0, 1.0)
+        if not self._unit:
+            action = torch.addcmul(self._middle.to(action.device), action, self._half_range.to(action.device))
+        return action.cpu().numpy().astype(self._dtype, copy=False)

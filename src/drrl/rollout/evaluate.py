@@ -1,0 +1,78 @@
+"""Evaluate P candidates × E episodes in one batched rollout, counting real steps and episodes exactly.
+
+The env must hold P·E sub-environments: candidate p's episode e runs in slot p·E + e. Every slot runs one episode;
+a slot whose episode has ended is masked (its later rewards and steps are not counted) while the others go on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from gymnasium.vector import VectorEnv
+
+from drrl.envs.batch import ActionMap
+from drrl.policies.base import Policy
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Returns of one batched rollout and what it cost."""
+
+    episode_returns: torch.Tensor  # (P, E)
+    terminated: torch.Tensor  # (P, E) bool: the episode ended by failure or success, not by a time limit
+    steps: int  # environment steps taken by episodes still running, summed over slots
+    episodes: int
+
+    @property
+    def returns(self) -> torch.Tensor:
+        """Each candidate's mean return over its E episodes, shape (P,)."""
+        return self.episode_returns.mean(dim=1)
+
+
+def episode_seeds(seed: int, population: int, episodes: int) -> list[int]:
+    """Reset seeds for the P·E slots from one seed.
+
+    Episode e of every candidate starts from the same state (common random numbers): paired candidates μ ± ε are
+    then compared on equal starts, which removes the start's noise from r⁺ − r⁻ in 2.31.
+    """
+    per_episode = np.random.default_rng(seed).integers(2**63, size=episodes)
+    return np.tile(per_episode, population).tolist()
+
+
+@torch.inference_mode()
+def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int = 1, seed: int | None = None,
+             max_steps: int | None = None) -> Evaluation:
+    """Run each of the P candidates in ``params`` (P, n) for ``episodes`` episodes on ``env`` at once.
+
+    ``max_steps`` cuts episodes that have not ended by then (for envs without a time limit of their own).
+    """
+    population = params.shape[0]
+    slots = population * episodes
+    if env.num_envs != slots:
+        raise ValueError(f"env has {env.num_envs} sub-environments; {population} candidates × {episodes} episodes "
+                         f"need {slots}")
+    action_map = ActionMap(env.single_action_space)
+    weights = policy.unflatten(params)
+    state = policy.initial_state(population, episodes)
+    seeds = None if seed is None else episode_seeds(seed, population, episodes)
+    obs, _ = env.reset(seed=seeds)
+    returns = np.zeros(slots)
+    running = np.ones(slots, dtype=bool)
+    terminated_slots = np.zeros(slots, dtype=bool)
+    steps = 0
+    t = 0
+    while running.any() and (max_steps is None or t < max_steps):
+        obs_t = torch.as_tensor(obs, dtype=torch.float32, device=params.device).view(population, episodes, -1)
+        raw, state = policy.act(weights, obs_t, state)
+        obs, reward, terminated, truncated, _ = env.step(action_map(raw.reshape(slots, -1)))
+        steps += int(np.count_nonzero(running))
+        np.add(returns, reward, out=returns, where=running)
+        terminated_slots |= running & terminated
+        running &= ~(terminated | truncated)
+        t += 1
+    episode_returns = torch.as_tensor(returns, dtype=torch.float64).view(population, episodes)
+    return Evaluation(episode_returns=episode_returns,
+                      terminated=torch.as_tensor(terminated_slots).view(population, episodes),
+                      steps=steps, episodes=slots)

@@ -1,0 +1,90 @@
+import gymnasium
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+
+from drrl.envs.batch import ActionMap, make_batch_env
+from drrl.policies import linear
+from drrl.rollout import episode_seeds, evaluate
+
+
+def one_at_a_time(policy, params, env_id, seeds, episodes):
+    """Reference: each episode alone on a single env, summing its rewards until it ends."""
+    env = gymnasium.make(env_id)
+    action_map = ActionMap(env.action_space)
+    returns, steps = np.zeros(len(seeds)), 0
+    for slot, seed in enumerate(seeds):
+        weights = policy.unflatten(params[slot // episodes : slot // episodes + 1])
+        obs, _ = env.reset(seed=seed)
+        done = False
+        while not done:
+            raw, _ = policy.act(weights, torch.as_tensor(obs, dtype=torch.float32).view(1, 1, -1), None)
+            obs, reward, terminated, truncated, _ = env.step(action_map(raw.view(1, -1))[0])
+            returns[slot] += reward
+            steps += 1
+            done = terminated or truncated
+    return returns.reshape(len(params), episodes), steps
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v1", "Pendulum-v1"])
+def test_batched_rollout_equals_one_episode_at_a_time(env_id):
+    population, episodes = 4, 3
+    env = make_batch_env(env_id, population * episodes)
+    policy = linear(env.single_observation_space.shape[0], ActionMap(env.single_action_space).size)
+    params = torch.randn(population, policy.num_params, generator=torch.Generator().manual_seed(1))
+    result = evaluate(policy, params, env, episodes, seed=7)
+    expected, steps = one_at_a_time(policy, params, env_id, episode_seeds(7, population, episodes), episodes)
+    np.testing.assert_allclose(result.episode_returns.numpy(), expected, rtol=1e-6)
+    assert result.steps == steps and result.episodes == population * episodes
+    torch.testing.assert_close(result.returns, result.episode_returns.mean(dim=1))
+
+
+def test_cartpole_episodes_that_fail_early_are_masked_and_counted_exactly():
+    env = make_batch_env("CartPole-v1", 6)
+    policy = linear(4, 2)
+    params = torch.zeros(6, policy.num_params)
+    params[:3, 0] = 1.0  # push by cart position: falls within a few dozen steps
+    result = evaluate(policy, params, env, 1, seed=0)
+    assert bool(result.terminated.all())
+    # CartPole-v1 pays 1 per step, so a masked rollout's return is its length and the lengths add up to the steps.
+    assert result.episode_returns.sum().item() == result.steps
+    assert result.steps < 6 * 500
+
+
+def test_common_starts_pair_candidates_on_the_same_episodes():
+    seeds = episode_seeds(3, population=4, episodes=2)
+    assert seeds[0::2] == [seeds[0]] * 4 and seeds[1::2] == [seeds[1]] * 4 and seeds[0] != seeds[1]
+
+
+def test_env_size_must_match_the_population():
+    env = make_batch_env("CartPole-v1", 5)
+    with pytest.raises(ValueError, match="need 6"):
+        evaluate(linear(4, 2), torch.zeros(3, 10), env, episodes=2)
+
+
+def test_max_steps_cuts_long_episodes():
+    env = make_batch_env("Pendulum-v1", 2)
+    result = evaluate(linear(3, 1), torch.zeros(2, 4), env, 1, seed=0, max_steps=10)
+    assert result.steps == 20 and not result.terminated.any()
+
+
+def test_action_map_scales_bounded_boxes_and_picks_discrete_argmax():
+    box = ActionMap(spaces.Box(-2.0, 2.0, (1,), np.float32))
+    np.testing.assert_allclose(box(torch.tensor([[0.5], [5.0], [-3.0]])), [[1.0], [2.0], [-2.0]])
+    shifted = ActionMap(spaces.Box(np.array([0, 10], np.float32), np.array([1, 20], np.float32)))
+    np.testing.assert_allclose(shifted(torch.tensor([[0.0, -1.0]])), [[0.5, 10.0]])
+    discrete = ActionMap(spaces.Discrete(3, start=-1))
+    assert discrete.size == 3 and discrete(torch.tensor([[0.1, 0.9, 0.2], [2.0, 0.0, 0.0]])).tolist() == [0, -1]
+
+
+def test_unsupported_spaces_are_refused_with_the_reason():
+    with pytest.raises(ValueError, match="needs a 1-D Box"):
+        make_batch_env("FrozenLake-v1", 2)
+    with pytest.raises(ValueError, match="1-D Box or a Discrete"):
+        ActionMap(spaces.MultiBinary(3))
+
+
+def test_unknown_env_lists_the_choices():
+    with pytest.raises(ValueError, match=r"unknown environment 'Nope-v9'.*cartpole \(drrl/CartPole-v0\).*Pendulum-v1"):
+        make_batch_env("Nope-v9", 2)
