@@ -1,0 +1,100 @@
+"""The training configuration: one typed, validated record, written to every run folder as config.json."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
+
+
+class TrainConfig(BaseModel):
+    """Everything a training run depends on. Defaults solve the thesis's cart-pole (5.1) out of the box."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    env: str = "cartpole"
+    policy: str = "linear"
+    sampler: str = "symmetric"
+    optimizer: str = "sgd"
+    fitness_shaping: str = "none"
+    popsize: int = Field(10, ge=2, description="candidates per generation")
+    episodes_per_candidate: int = Field(1, ge=1)
+    budget: int = Field(1000, ge=1, description="real training episodes to spend")
+    sigma_init: float = Field(1.0, gt=0)
+    center_lr: float = Field(0.01, gt=0)
+    sigma_lr: float = Field(0.005, gt=0)
+    baseline_decay: float = Field(0.1, ge=0, lt=1)
+    max_sigma_change: float = Field(0.2, gt=0, lt=1)
+    eval_episodes: int = Field(50, ge=1, description="episodes that measure the centre policy (not training)")
+    eval_every: int = Field(1, ge=1, description="generations between measurements of the centre policy")
+    checkpoint_every: int = Field(10, ge=1, description="generations between checkpoints")
+    max_steps: int | None = Field(None, ge=1, description="cut episodes longer than this")
+    seed: int = Field(0, ge=0)
+    device: str = "cpu"
+
+    @field_validator("sampler")
+    @classmethod
+    def _known_sampler(cls, value: str) -> str:
+        return _one_of(value, SAMPLERS)
+
+    @field_validator("optimizer")
+    @classmethod
+    def _known_optimizer(cls, value: str) -> str:
+        return _one_of(value, OPTIMIZERS)
+
+    @field_validator("fitness_shaping")
+    @classmethod
+    def _known_shaping(cls, value: str) -> str:
+        return _one_of(value, FITNESS_SHAPINGS)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> TrainConfig:
+        if self.sampler == "symmetric" and self.popsize % 2:
+            raise ValueError(f"symmetric sampling needs an even popsize (pairs μ ± ε), got {self.popsize}")
+        if self.sampler == "supersymmetric" and self.popsize % 4:
+            raise ValueError(f"supersymmetric sampling needs a popsize divisible by 4, got {self.popsize}")
+        if self.budget < self.episodes_per_generation:
+            raise ValueError(f"budget of {self.budget} real episodes is smaller than one generation "
+                             f"({self.popsize} candidates × {self.episodes_per_candidate} episodes)")
+        return self
+
+    @property
+    def episodes_per_generation(self) -> int:
+        return self.popsize * self.episodes_per_candidate
+
+    @property
+    def generations(self) -> int:
+        return self.budget // self.episodes_per_generation
+
+
+def _one_of(value: str, choices: tuple[str, ...]) -> str:
+    if value not in choices:
+        raise ValueError(f"{value!r} is not one of: {', '.join(choices)}")
+    return value
+
+
+def load_config_file(path: Path) -> dict:
+    """Read a TOML or JSON config file into a plain dict (validated later, with command-line overrides)."""
+    try:
+        text = path.read_text()
+    except OSError as error:
+        raise ValueError(f"cannot read config file {path}: {error.strerror}") from None
+    try:
+        return json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as error:
+        raise ValueError(f"config file {path} is not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {error}") from None
+
+
+def describe_errors(error: ValidationError) -> str:
+    """One line per invalid field: the field, the value given and what is allowed."""
+    lines = []
+    for item in error.errors():
+        field = ".".join(str(part) for part in item["loc"]) or "config"
+        message = item["msg"].removeprefix("Value error, ")
+        given = f" (got {item['input']!r})" if item["loc"] else ""
+        lines.append(f"{field}: {message}{given}")
+    return "\n".join(lines)

@@ -1,0 +1,133 @@
+"""Model-free training: PGPE (thesis 2.4, Algorithm 2) searching policy weights on a batched environment.
+
+One generation: ask PGPE for P candidates, run them for E real episodes each in one batched rollout, tell PGPE their
+mean returns, then measure the centre policy μ on separate evaluation episodes (counted apart, never as training).
+Every generation appends a row to metrics.csv; checkpoints hold the search state and the centre policy.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from drrl.config import TrainConfig
+from drrl.envs.batch import ActionMap, make_batch_env, observation_size, resolve_env_id
+from drrl.envs.solved import VERDICTS
+from drrl.policies import Policy, make_policy
+from drrl.rollout import Evaluation, evaluate
+from drrl.runs import RunFolder
+from drrl.search.pgpe import PGPE
+
+TRAINING, MEASURING = 0, 1  # independent random streams for training and measuring episodes
+
+
+class NonFiniteReturn(RuntimeError):
+    """A candidate's return was NaN or infinite; the run stops with its folder and last checkpoint kept."""
+
+
+@dataclass
+class Counters:
+    """What the run has spent so far. Real episodes and steps are training only; measuring is counted apart."""
+
+    generation: int = 0
+    real_episodes: int = 0
+    real_steps: int = 0
+    eval_episodes: int = 0
+    rows: list[dict] = field(default_factory=list)  # one metrics row per generation
+
+
+def derive_seed(seed: int, generation: int, stream: int) -> int:
+    """An episode seed that depends only on the run seed, the generation and the stream."""
+    return int(np.random.SeedSequence([seed, generation, stream]).generate_state(1)[0])
+
+
+def build_policy(config: TrainConfig, env) -> Policy:
+    return make_policy(config.policy, observation_size(env.single_observation_space),
+                       ActionMap(env.single_action_space).size)
+
+
+def build_search(config: TrainConfig, policy: Policy) -> PGPE:
+    generator = torch.Generator().manual_seed(config.seed)
+    return PGPE(policy.initial_center(generator).to(config.device), popsize=config.popsize, sampler=config.sampler,
+                sigma_init=config.sigma_init, center_lr=config.center_lr, sigma_lr=config.sigma_lr,
+                optimizer=config.optimizer, fitness_shaping=config.fitness_shaping,
+                baseline_decay=config.baseline_decay, max_sigma_change=config.max_sigma_change, seed=config.seed)
+
+
+def measure(policy: Policy, center: torch.Tensor, env, config: TrainConfig, seed: int) -> Evaluation:
+    """The centre policy μ over ``env.num_envs`` fresh episodes."""
+    return evaluate(policy, center[None], env, env.num_envs, seed=seed, max_steps=config.max_steps)
+
+
+def train(config: TrainConfig, run: RunFolder | None = None, progress: bool = True) -> Counters:
+    """Spend ``config.budget`` real episodes on PGPE; write metrics, checkpoints and the learning curve to ``run``."""
+    env_id = resolve_env_id(config.env)
+    env = make_batch_env(env_id, config.episodes_per_generation)
+    eval_env = make_batch_env(env_id, config.eval_episodes)
+    policy = build_policy(config, env)
+    search = build_search(config, policy)
+    verdict = VERDICTS.get(env_id)
+    counters = Counters()
+    if run is not None:
+        run.write_config(config)
+    start = time.perf_counter()
+    bar = tqdm(total=config.generations * config.episodes_per_generation, unit="ep", disable=not progress,
+               desc=f"{env_id} {config.policy} {config.sampler}", dynamic_ncols=True)
+    try:
+        for generation in range(1, config.generations + 1):
+            candidates = search.ask()
+            result = evaluate(policy, candidates, env, config.episodes_per_candidate,
+                              seed=derive_seed(config.seed, generation, TRAINING), max_steps=config.max_steps)
+            _check_finite(result.returns, generation)
+            stats = search.tell(result.returns.to(torch.float32))
+            counters.generation = generation
+            counters.real_episodes += result.episodes
+            counters.real_steps += result.steps
+            row = {"generation": generation, "real_episodes": counters.real_episodes,
+                   "real_steps": counters.real_steps, "mean_return": float(result.returns.mean()),
+                   "best_return": float(result.returns.max()), "center_return": float("nan"),
+                   "sigma_norm": float(search.sigma.norm())}
+            if generation % config.eval_every == 0 or generation == config.generations:
+                measured = measure(policy, search.center, eval_env, config,
+                                   derive_seed(config.seed, generation, MEASURING))
+                counters.eval_episodes += measured.episodes
+                row["center_return"] = float(measured.returns[0])
+                if verdict is not None:
+                    row.update({name: int(ok) for name, ok in
+                                verdict(measured.episode_returns, measured.terminated).items()})
+            row.update(eval_episodes=counters.eval_episodes, wall_time=round(time.perf_counter() - start, 3))
+            counters.rows.append(row)
+            if run is not None:
+                run.append_metrics(row)
+                if generation % config.checkpoint_every == 0:
+                    run.save_checkpoint(checkpoint_state(search, counters, env_id, policy))
+            bar.update(result.episodes)
+            bar.set_postfix(gen=generation, mean=f"{row['mean_return']:.1f}", best=f"{row['best_return']:.1f}",
+                            centre=f"{row['center_return']:.1f}", refresh=False)
+    finally:
+        bar.close()
+        env.close()
+        eval_env.close()
+        if run is not None:
+            run.save_checkpoint(checkpoint_state(search, counters, env_id, policy))
+            if counters.generation:
+                run.plot_learning_curve(f"{env_id}, {config.policy} policy, {config.sampler} PGPE")
+    return counters
+
+
+def _check_finite(returns: torch.Tensor, generation: int) -> None:
+    bad = torch.nonzero(~torch.isfinite(returns)).flatten().tolist()
+    if bad:
+        raise NonFiniteReturn(f"generation {generation}: candidate(s) {bad} returned non-finite returns "
+                              f"{returns[bad].tolist()}; stopped before updating the search")
+
+
+def checkpoint_state(search: PGPE, counters: Counters, env_id: str, policy: Policy) -> dict:
+    return {"search": search.state_dict(), "center": search.center.detach().cpu(), "env_id": env_id,
+            "num_params": policy.num_params, "generation": counters.generation,
+            "real_episodes": counters.real_episodes, "real_steps": counters.real_steps,
+            "eval_episodes": counters.eval_episodes}

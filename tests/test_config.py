@@ -1,0 +1,36 @@
+import pytest
+from pydantic import ValidationError
+
+from drrl.config import TrainConfig, describe_errors, load_config_file
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"sampler": "genetic"}, "sampler: 'genetic' is not one of: reinforce, symmetric, supersymmetric"),
+    ({"optimizer": "lbfgs"}, "optimizer: 'lbfgs' is not one of: sgd, adam, clipup"),
+    ({"sigma_init": 0}, "sigma_init: Input should be greater than 0 (got 0)"),
+    ({"popsize": 7}, "symmetric sampling needs an even popsize"),
+    ({"sampler": "supersymmetric", "popsize": 10}, "supersymmetric sampling needs a popsize divisible by 4"),
+    ({"budget": 5}, "budget of 5 real episodes is smaller than one generation (10 candidates × 1 episodes)"),
+    ({"popsiz": 10}, "popsiz: Extra inputs are not permitted"),
+])
+def test_invalid_settings_name_the_field_and_what_is_allowed(settings, message):
+    with pytest.raises(ValidationError) as error:
+        TrainConfig.model_validate(settings)
+    assert message in describe_errors(error.value)
+
+
+def test_config_files_in_toml_and_json(tmp_path):
+    (tmp_path / "a.toml").write_text('policy = "mlp:8"\nbudget = 200\n')
+    (tmp_path / "b.json").write_text('{"sampler": "reinforce"}')
+    assert load_config_file(tmp_path / "a.toml") == {"policy": "mlp:8", "budget": 200}
+    assert load_config_file(tmp_path / "b.json") == {"sampler": "reinforce"}
+    (tmp_path / "c.toml").write_text("policy = ")
+    with pytest.raises(ValueError, match="not valid TOML"):
+        load_config_file(tmp_path / "c.toml")
+    with pytest.raises(ValueError, match="cannot read config file"):
+        load_config_file(tmp_path / "missing.toml")
+
+
+def test_generations_fill_the_budget_with_whole_generations():
+    config = TrainConfig(popsize=10, episodes_per_candidate=2, budget=95)
+    assert config.episodes_per_generation == 20 and config.generations == 4
