@@ -10,7 +10,7 @@ from drrl.config import TrainConfig, describe_errors, load_config_file
     ({"sigma_init": 0}, "sigma_init: Input should be greater than 0 (got 0)"),
     ({"popsize": 7}, "symmetric sampling needs an even popsize"),
     ({"sampler": "supersymmetric", "popsize": 10}, "supersymmetric sampling needs a popsize divisible by 4"),
-    ({"budget": 5}, "budget of 5 real episodes is smaller than one generation (10 candidates × 1 episodes)"),
+    ({"budget": 5, "popsize": 6}, "budget of 5 real episodes is smaller than one generation (6 candidates × 1 episode(s) each)"),
     ({"popsiz": 10}, "popsiz: Extra inputs are not permitted"),
 ])
 def test_invalid_settings_name_the_field_and_what_is_allowed(settings, message):

@@ -13,10 +13,17 @@ from drrl.config import TrainConfig, describe_errors, load_config_file
 from drrl.envs.batch import make_batch_env
 from drrl.envs.solved import VERDICTS
 from drrl.runs import RunFolder
+from drrl.policies import ACCEPTED_FORMS
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
-from drrl.train import NonFiniteReturn, build_policy, derive_seed, measure, train
+from drrl.train import NonFiniteReturn, build_policy, derive_seed, measure, prepare, run
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
+
+
+def setting(name: str, kind, help: str):
+    """A `drrl train` option for TrainConfig field ``name``; left unset, the config file or the default applies."""
+    default = TrainConfig.model_fields[name].default
+    return click.option(f"--{name.replace('_', '-')}", name, type=kind, help=f"{help}  [default: {default}]")
 
 
 @click.group()
@@ -28,19 +35,19 @@ def main() -> None:
 @main.command("train")
 @click.argument("env_name", required=False, metavar="[ENV]")
 @click.option("--env", "env_option", help="Environment: cartpole or any Gymnasium id (e.g. Pendulum-v1).")
-@click.option("--policy", help="linear, linear:nobias, multilinear:W[,W...], mlp:W[,W...]  [default: linear]")
-@click.option("--sampler", type=click.Choice(SAMPLERS), help="PGPE sampler  [default: symmetric]")
-@click.option("--optimizer", type=click.Choice(OPTIMIZERS), help="step rule for μ  [default: sgd]")
-@click.option("--fitness-shaping", type=click.Choice(FITNESS_SHAPINGS), help="[default: none]")
-@click.option("--popsize", type=int, help="candidates per generation  [default: 10]")
-@click.option("--episodes-per-candidate", type=int, help="real episodes per candidate  [default: 1]")
-@click.option("--budget", type=int, help="real training episodes to spend  [default: 1000]")
-@click.option("--sigma-init", type=float, help="initial σ of every parameter")
-@click.option("--center-lr", type=float, help="learning rate of μ")
-@click.option("--sigma-lr", type=float, help="learning rate of σ")
-@click.option("--eval-episodes", type=int, help="episodes measuring the centre policy  [default: 50]")
-@click.option("--eval-every", type=int, help="generations between measurements  [default: 1]")
-@click.option("--seed", type=int, help="[default: 0]")
+@setting("policy", str, ACCEPTED_FORMS)
+@setting("sampler", click.Choice(SAMPLERS), "PGPE sampler")
+@setting("optimizer", click.Choice(OPTIMIZERS), "step rule for μ")
+@setting("fitness_shaping", click.Choice(FITNESS_SHAPINGS), "fitness shaping")
+@setting("popsize", int, "candidates per generation")
+@setting("episodes_per_candidate", int, "real episodes per candidate")
+@setting("budget", int, "real training episodes to spend")
+@setting("sigma_init", float, "initial σ of every parameter")
+@setting("center_lr", float, "step size of μ")
+@setting("sigma_lr", float, "learning rate of σ")
+@setting("eval_episodes", int, "episodes measuring the centre policy")
+@setting("eval_every", int, "generations between measurements")
+@setting("seed", int, "random seed")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
               help="TOML or JSON file of settings; command-line options override it.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), help="run folder  [default: runs/ENV-TIME]")
@@ -58,19 +65,23 @@ def train_command(env_name, env_option, config_file, out, quiet, **options) -> N
     except ValidationError as error:
         raise click.UsageError("invalid configuration:\n" + describe_errors(error)) from None
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    run = RunFolder.create(out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}")
-    click.echo(f"run folder: {run.path}")
+    out = out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}"
     try:
-        counters = train(config, run, progress=not quiet)
+        setup = prepare(config)
+        folder = RunFolder.create(out)
+    except ValueError as error:  # unknown environment or policy, a space drrl cannot use, an occupied --out
+        raise click.UsageError(str(error)) from None
+    try:
+        counters = run(setup, folder, progress=not quiet)
     except NonFiniteReturn as error:
-        raise click.ClickException(f"{error}\nrun folder kept: {run.path}") from None
+        raise click.ClickException(f"{error}\nrun folder and checkpoint kept: {out}") from None
     except KeyboardInterrupt:
-        raise click.ClickException(f"interrupted; run folder and checkpoint kept: {run.path}") from None
+        raise click.ClickException(f"interrupted; run folder and checkpoint kept: {out}") from None
     row = counters.rows[-1]
-    click.echo(f"done: {counters.generation} generations, "
-               f"{counters.real_episodes} real episodes, {counters.real_steps} real steps; "
-               f"centre return {row['center_return']:.1f}")
-    click.echo(f"metrics: {run.path / 'metrics.csv'}, learning curve: {run.path / 'learning_curve.png'}")
+    click.echo(f"done: {counters.generation} generations, {counters.real_episodes} real episodes, "
+               f"{counters.real_steps} real steps; centre policy's return {row['center_return']:.1f}")
+    click.echo(f"run folder: {out} (metrics.csv, learning_curve.png, checkpoint.safetensors)")
+    click.echo(f"next: drrl eval {out}")
 
 
 @main.command("eval")

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
+from gymnasium.vector import VectorEnv
 from tqdm import tqdm
 
 from drrl.config import TrainConfig
@@ -63,20 +65,44 @@ def measure(policy: Policy, center: torch.Tensor, env, config: TrainConfig, seed
     return evaluate(policy, center[None], env, env.num_envs, seed=seed, max_steps=config.max_steps)
 
 
-def train(config: TrainConfig, run: RunFolder | None = None, progress: bool = True) -> Counters:
-    """Spend ``config.budget`` real episodes on PGPE; write metrics, checkpoints and the learning curve to ``run``."""
+@dataclass
+class Setup:
+    """The pieces of a run, built and checked before any training starts."""
+
+    config: TrainConfig
+    env_id: str
+    env: VectorEnv
+    eval_env: VectorEnv
+    policy: Policy
+    search: PGPE
+
+
+def prepare(config: TrainConfig) -> Setup:
+    """Build envs, policy and search; bad names or unsupported spaces raise ValueError here, before any work."""
     env_id = resolve_env_id(config.env)
     env = make_batch_env(env_id, config.episodes_per_generation)
     eval_env = make_batch_env(env_id, config.eval_episodes)
     policy = build_policy(config, env)
-    search = build_search(config, policy)
+    return Setup(config, env_id, env, eval_env, policy, build_search(config, policy))
+
+
+def train(config: TrainConfig, out: Path | None = None, progress: bool = True) -> Counters:
+    """Spend ``config.budget`` real episodes on PGPE; write metrics, checkpoints and the learning curve to ``out``."""
+    setup = prepare(config)
+    return run(setup, None if out is None else RunFolder.create(out), progress)
+
+
+def run(setup: Setup, folder: RunFolder | None = None, progress: bool = True) -> Counters:
+    """The generation loop of :func:`train` on prepared pieces, writing into ``folder`` if given."""
+    config, env_id, env, eval_env, policy, search = (setup.config, setup.env_id, setup.env, setup.eval_env,
+                                                     setup.policy, setup.search)
     verdict = VERDICTS.get(env_id)
     counters = Counters()
-    if run is not None:
-        run.write_config(config)
+    if folder is not None:
+        folder.write_config(config)
     start = time.perf_counter()
     bar = tqdm(total=config.generations * config.episodes_per_generation, unit="ep", disable=not progress,
-               desc=f"{env_id} {config.policy} {config.sampler}", dynamic_ncols=True)
+               desc="real episodes", dynamic_ncols=True)
     try:
         for generation in range(1, config.generations + 1):
             candidates = search.ask()
@@ -101,21 +127,21 @@ def train(config: TrainConfig, run: RunFolder | None = None, progress: bool = Tr
                                 verdict(measured.episode_returns, measured.terminated).items()})
             row.update(eval_episodes=counters.eval_episodes, wall_time=round(time.perf_counter() - start, 3))
             counters.rows.append(row)
-            if run is not None:
-                run.append_metrics(row)
+            if folder is not None:
+                folder.append_metrics(row)
                 if generation % config.checkpoint_every == 0:
-                    run.save_checkpoint(checkpoint_state(search, counters, env_id, policy))
+                    folder.save_checkpoint(checkpoint_state(search, counters, env_id, policy))
             bar.update(result.episodes)
-            bar.set_postfix(gen=generation, mean=f"{row['mean_return']:.1f}", best=f"{row['best_return']:.1f}",
-                            centre=f"{row['center_return']:.1f}", refresh=False)
+            bar.set_postfix_str(f"gen {generation} | return mean {row['mean_return']:.1f} best "
+                                f"{row['best_return']:.1f} centre {row['center_return']:.1f}", refresh=False)
     finally:
         bar.close()
         env.close()
         eval_env.close()
-        if run is not None:
-            run.save_checkpoint(checkpoint_state(search, counters, env_id, policy))
+        if folder is not None:
+            folder.save_checkpoint(checkpoint_state(search, counters, env_id, policy))
             if counters.generation:
-                run.plot_learning_curve(f"{env_id}, {config.policy} policy, {config.sampler} PGPE")
+                folder.plot_learning_curve(f"{env_id}, {config.policy} policy, {config.sampler} PGPE")
     return counters
 
 

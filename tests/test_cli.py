@@ -1,0 +1,131 @@
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from drrl.cli import main
+from drrl.config import TrainConfig
+from drrl.runs import RunFolder
+from drrl.train import build_search, prepare
+
+SMALL = ["--budget", "40", "--popsize", "10", "--eval-episodes", "5", "--quiet"]
+
+
+def train(tmp_path, *args, name="run"):
+    out = tmp_path / name
+    result = CliRunner().invoke(main, ["train", *args, "--out", str(out)])
+    return result, out
+
+
+def metrics(out: Path) -> list[dict[str, str]]:
+    with (out / "metrics.csv").open() as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_train_writes_a_readable_run_folder_and_counts_real_episodes(tmp_path):
+    result, out = train(tmp_path, "cartpole", *SMALL)
+    assert result.exit_code == 0, result.output
+    assert {p.name for p in out.iterdir()} == {"config.json", "metrics.csv", "checkpoint.safetensors",
+                                                "learning_curve.png"}
+    rows = metrics(out)
+    assert [int(r["real_episodes"]) for r in rows] == [10, 20, 30, 40]
+    assert [int(r["eval_episodes"]) for r in rows] == [5, 10, 15, 20]  # measuring is counted apart
+    steps = [int(r["real_steps"]) for r in rows]
+    assert all(10 <= b - a <= 10 * 200 for a, b in zip([0, *steps], steps))
+    assert "40 real episodes" in result.output
+
+
+def test_same_seed_gives_identical_metrics(tmp_path):
+    first, second = (train(tmp_path, "cartpole", *SMALL, "--seed", "3", name=name)[1] for name in ("a", "b"))
+    drop_time = lambda rows: [{k: v for k, v in row.items() if k != "wall_time"} for row in rows]  # noqa: E731
+    assert drop_time(metrics(first)) == drop_time(metrics(second))
+    other = train(tmp_path, "cartpole", *SMALL, "--seed", "4", name="c")[1]
+    assert drop_time(metrics(other)) != drop_time(metrics(first))
+
+
+def test_checkpoint_restores_the_search_exactly(tmp_path):
+    _, out = train(tmp_path, "cartpole", *SMALL)
+    folder = RunFolder(out)
+    checkpoint = folder.load_checkpoint()
+    search = prepare(folder.read_config()).search
+    search.load_state_dict(checkpoint["search"])
+    assert torch.equal(search.center, checkpoint["center"])
+    assert checkpoint["real_episodes"] == 40 and checkpoint["generation"] == 4
+
+
+def test_eval_reports_the_cartpole_verdicts(tmp_path):
+    _, out = train(tmp_path, "cartpole", *SMALL)
+    result = CliRunner().invoke(main, ["eval", str(out), "--episodes", "7"])
+    assert result.exit_code == 0, result.output
+    assert "7 episodes: return" in result.output
+    assert "balanced:" in result.output and "near-optimal:" in result.output
+
+
+def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
+    result, out = train(tmp_path, "--env", "Pendulum-v1", "--policy", "mlp:4", "--budget", "8", "--popsize", "4",
+                        "--eval-episodes", "2", "--quiet")
+    assert result.exit_code == 0, result.output
+    assert int(metrics(out)[-1]["real_steps"]) == 8 * 200
+    evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "2"])
+    assert "±" in evaluation.output and "balanced" not in evaluation.output
+
+
+def test_config_file_is_read_and_overridden_by_options(tmp_path):
+    config = tmp_path / "c.toml"
+    config.write_text('budget = 20\npopsize = 10\neval_episodes = 3\nsampler = "reinforce"\n')
+    result, out = train(tmp_path, "--config", str(config), "--sampler", "symmetric", "--quiet")
+    assert result.exit_code == 0, result.output
+    saved = RunFolder(out).read_config()
+    assert (saved.budget, saved.sampler, saved.eval_episodes) == (20, "symmetric", 3)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--env", "NoSuchEnv-v3"], "unknown environment 'NoSuchEnv-v3'"),
+    (["--policy", "cnn:3"], "accepted forms: linear, linear:nobias"),
+    (["--sampler", "genetic"], "'genetic' is not one of"),
+    (["--optimizer", "lbfgs"], "'lbfgs' is not one of"),
+    (["--sigma-init", "0"], "sigma_init: Input should be greater than 0"),
+    (["--popsize", "7"], "symmetric sampling needs an even popsize"),
+    (["--budget", "5"], "smaller than one generation"),
+    (["--env", "FrozenLake-v1"], "needs a 1-D Box"),
+    (["cartpole", "--env", "Pendulum-v1"], "two environments given"),
+])
+def test_bad_input_is_refused_before_any_work(tmp_path, args, message):
+    result, out = train(tmp_path, *args, "--quiet")
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert not out.exists()
+
+
+class NaNRewardEnv(gymnasium.Env):
+    """Returns a NaN reward whenever the action is positive."""
+
+    observation_space = gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.ones(2, np.float32), {}
+
+    def step(self, action):
+        return np.ones(2, np.float32), float("nan") if action[0] > 0 else 0.0, True, False, {}
+
+
+def test_non_finite_returns_stop_the_run_name_the_candidate_and_keep_the_folder(tmp_path):
+    gymnasium.register("drrl-test/NaNReward-v0", entry_point=NaNRewardEnv)
+    result, out = train(tmp_path, "--env", "drrl-test/NaNReward-v0", "--budget", "8", "--popsize", "4",
+                        "--eval-episodes", "1", "--quiet")
+    assert result.exit_code == 1
+    assert "candidate(s) [" in result.output and "run folder and checkpoint kept" in result.output
+    assert RunFolder(out).load_checkpoint()["generation"] == 0
+
+
+def test_the_drrl_command_is_installed():
+    drrl = Path(sys.executable).with_name("drrl")
+    result = subprocess.run([drrl, "train", "--help"], capture_output=True, text=True, check=True)
+    assert "--budget" in result.stdout and "--sampler" in result.stdout
