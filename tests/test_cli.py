@@ -57,14 +57,19 @@ def test_checkpoint_restores_the_search_exactly(tmp_path):
     search.load_state_dict(checkpoint["search"])
     assert torch.equal(search.center, checkpoint["center"])
     assert checkpoint["real_episodes"] == 40 and checkpoint["generation"] == 4
+    best = max(metrics(out), key=lambda row: float(row["center_return"]))
+    assert checkpoint["best_generation"] == int(best["generation"])
+    assert checkpoint["best_center_return"] == float(best["center_return"])
 
 
 def test_eval_reports_the_cartpole_verdicts(tmp_path):
     _, out = train(tmp_path, "cartpole", *SMALL)
     result = CliRunner().invoke(main, ["eval", str(out), "--episodes", "7"])
     assert result.exit_code == 0, result.output
-    assert "7 episodes: return" in result.output
+    assert "best measured centre (generation" in result.output and "7 episodes: return" in result.output
     assert "balanced:" in result.output and "near-optimal:" in result.output
+    final = CliRunner().invoke(main, ["eval", str(out), "--episodes", "7", "--final"])
+    assert "final centre (generation 4)" in final.output
 
 
 def test_any_gymnasium_env_trains_and_evaluates(tmp_path):

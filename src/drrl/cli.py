@@ -77,9 +77,9 @@ def train_command(env_name, env_option, config_file, out, quiet, **options) -> N
         raise click.ClickException(f"{error}\nrun folder and checkpoint kept: {out}") from None
     except KeyboardInterrupt:
         raise click.ClickException(f"interrupted; run folder and checkpoint kept: {out}") from None
-    row = counters.rows[-1]
     click.echo(f"done: {counters.generation} generations, {counters.real_episodes} real episodes, "
-               f"{counters.real_steps} real steps; centre policy's return {row['center_return']:.1f}")
+               f"{counters.real_steps} real steps; centre policy's return {counters.rows[-1]['center_return']:.1f} "
+               f"(best {counters.best_center_return:.1f}, generation {counters.best_generation})")
     click.echo(f"run folder: {out} (metrics.csv, learning_curve.png, checkpoint.safetensors)")
     click.echo(f"next: drrl eval {out}")
 
@@ -88,8 +88,13 @@ def train_command(env_name, env_option, config_file, out, quiet, **options) -> N
 @click.argument("run_path", metavar="RUN", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
-def eval_command(run_path: Path, episodes: int, seed: int) -> None:
-    """Run a trained centre policy over fresh episodes and report how it does."""
+@click.option("--final", is_flag=True, help="the last centre policy instead of the best measured one")
+def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
+    """Run a trained centre policy over fresh episodes and report how it does.
+
+    By default the centre policy that measured best during training; its measurement chose it, so it is measured
+    again here on new episodes.
+    """
     run = RunFolder(run_path)
     try:
         config = run.read_config()
@@ -98,10 +103,13 @@ def eval_command(run_path: Path, episodes: int, seed: int) -> None:
         raise click.ClickException(str(error)) from None
     env = make_batch_env(checkpoint["env_id"], episodes)
     policy = build_policy(config, env)
-    result = measure(policy, checkpoint["center"], env, config, derive_seed(seed, 0, EVAL_STREAM))
+    center = checkpoint["center"] if final else checkpoint["best_center"]
+    which = (f"final centre (generation {checkpoint['generation']})" if final
+             else f"best measured centre (generation {checkpoint['best_generation']})")
+    result = measure(policy, center, env, config, derive_seed(seed, 0, EVAL_STREAM))
     env.close()
     returns = result.episode_returns.flatten().numpy()
-    click.echo(f"{checkpoint['env_id']}, {config.policy} policy, {episodes} episodes: return "
+    click.echo(f"{checkpoint['env_id']}, {config.policy} policy, {which}, {episodes} episodes: return "
                f"{returns.mean():.1f} ± {returns.std():.1f} (min {returns.min():.1f}, max {returns.max():.1f})")
     verdict = VERDICTS.get(checkpoint["env_id"])
     if verdict is not None:

@@ -40,6 +40,9 @@ class Counters:
     real_steps: int = 0
     eval_episodes: int = 0
     rows: list[dict] = field(default_factory=list)  # one metrics row per generation
+    best_center: torch.Tensor | None = None  # the centre policy with the highest measured return so far
+    best_center_return: float = float("-inf")
+    best_generation: int = 0
 
 
 def derive_seed(seed: int, generation: int, stream: int) -> int:
@@ -109,7 +112,7 @@ def run(setup: Setup, folder: RunFolder | None = None, progress: bool = True) ->
             result = evaluate(policy, candidates, env, config.episodes_per_candidate,
                               seed=derive_seed(config.seed, generation, TRAINING), max_steps=config.max_steps)
             _check_finite(result.returns, generation)
-            stats = search.tell(result.returns.to(torch.float32))
+            search.tell(result.returns.to(torch.float32))
             counters.generation = generation
             counters.real_episodes += result.episodes
             counters.real_steps += result.steps
@@ -122,6 +125,9 @@ def run(setup: Setup, folder: RunFolder | None = None, progress: bool = True) ->
                                    derive_seed(config.seed, generation, MEASURING))
                 counters.eval_episodes += measured.episodes
                 row["center_return"] = float(measured.returns[0])
+                if row["center_return"] > counters.best_center_return:
+                    counters.best_center, counters.best_center_return = search.center, row["center_return"]
+                    counters.best_generation = generation
                 if verdict is not None:
                     row.update({name: int(ok) for name, ok in
                                 verdict(measured.episode_returns, measured.terminated).items()})
@@ -153,7 +159,10 @@ def _check_finite(returns: torch.Tensor, generation: int) -> None:
 
 
 def checkpoint_state(search: PGPE, counters: Counters, env_id: str, policy: Policy) -> dict:
+    best = search.center if counters.best_center is None else counters.best_center
     return {"search": search.state_dict(), "center": search.center.detach().cpu(), "env_id": env_id,
+            "best_center": best.detach().cpu(), "best_center_return": counters.best_center_return,
+            "best_generation": counters.best_generation,
             "num_params": policy.num_params, "generation": counters.generation,
             "real_episodes": counters.real_episodes, "real_steps": counters.real_steps,
             "eval_episodes": counters.eval_episodes}
