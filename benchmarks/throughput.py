@@ -45,7 +45,7 @@ def one_at_a_time(policy, candidates, env) -> tuple[float, int]:
     return time.perf_counter() - start, steps
 
 
-def bare_physics(env, repeats: int = 2000) -> float:
+def bare_physics(env, repeats: int) -> float:
     """Env-steps/s of the batched env alone with a zero action (the physics and the reward, no policy)."""
     env.reset(seed=0)
     action = np.zeros((env.num_envs, 1), dtype=np.float32)
@@ -72,7 +72,8 @@ def main() -> None:
     fast_rate = statistics.median(steps / seconds for seconds, steps in fast)
     slow_rate = statistics.median(steps / seconds for seconds, steps in slow)
     print(f"population {args.population}, linear policy, steps per generation {fast[0][1]}")
-    print(f"bare batched env (zero action):  {bare_physics(env):>12,.0f} env-steps/s")
+    bare = statistics.median(bare_physics(env, 400) for _ in range(args.repeats))
+    print(f"bare batched env (zero action):  {bare:>12,.0f} env-steps/s (median of {args.repeats})")
     print(f"batched rollout incl. policy:    {fast_rate:>12,.0f} env-steps/s (median of {len(fast)})")
     print(f"one env at a time (Gymnasium):   {slow_rate:>12,.0f} env-steps/s (median of {len(slow)})")
     print(f"speed-up: {fast_rate / slow_rate:.1f}x")
