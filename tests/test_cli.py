@@ -10,9 +10,8 @@ import torch
 from click.testing import CliRunner
 
 from drrl.cli import main
-from drrl.config import TrainConfig
 from drrl.runs import RunFolder
-from drrl.train import build_search, prepare
+from drrl.train import prepare
 
 SMALL = ["--budget", "40", "--popsize", "10", "--eval-episodes", "5", "--quiet"]
 
