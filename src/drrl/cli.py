@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from drrl import __version__
 from drrl.config import TrainConfig, describe_errors, load_config_file
-from drrl.envs.batch import make_batch_env
+from drrl.envs.batch import ENV_ALIASES, make_batch_env
 from drrl.envs.solved import VERDICTS
 from drrl.runs import RunFolder
 from drrl.policies import ACCEPTED_FORMS
@@ -34,7 +34,7 @@ def main() -> None:
 
 @main.command("train")
 @click.argument("env_name", required=False, metavar="[ENV]")
-@click.option("--env", "env_option", help="Environment: cartpole or any Gymnasium id (e.g. Pendulum-v1).")
+@click.option("--env", "env_option", help=f"Environment: {', '.join(ENV_ALIASES)} or any Gymnasium id (e.g. Pendulum-v1).")
 @setting("policy", str, ACCEPTED_FORMS)
 @setting("sampler", click.Choice(SAMPLERS), "PGPE sampler")
 @setting("optimizer", click.Choice(OPTIMIZERS), "step rule for μ")

@@ -14,7 +14,8 @@ import torch
 from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
-ENV_ALIASES = {"cartpole": "drrl/CartPole-v0"}
+ENV_ALIASES = {"cartpole": "drrl/CartPole-v0", "cartpole-po": "drrl/CartPolePO-v0",
+               "cartpole-swingup": "drrl/CartPoleSwingUp-v0"}
 
 
 def resolve_env_id(name: str) -> str:

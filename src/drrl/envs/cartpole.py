@@ -11,7 +11,18 @@ State, in the thesis's order: (s, ṡ, θ, θ̇) = cart position, cart velocity,
 leaning towards +s), angular velocity. An action in [-1, 1] is clipped and scaled to a force of ±50 N.
 
 Tasks are small objects (start distribution, observation, reward and termination) so that variants slot in next
-to :class:`BalanceTask` without touching the physics or the environments.
+to :class:`BalanceTask` without touching the physics or the environments:
+
+* :class:`BalanceTask` (``drrl/CartPole-v0``): the thesis's task, 5.1 with the reward 5.8, T = 200 steps (4 s).
+* :class:`PartiallyObservedTask` (``drrl/CartPolePO-v0``): the same task observing only (s, θ). The velocities are
+  hidden, so the environment is a POMDP (thesis 2.1.1) and a policy must infer them from what it has seen.
+  Solved means the same as for the balance task. Note that "balanced" alone does not need memory: the static
+  feedback a = 0.25·θ keeps every start inside the bounds for 200 steps, swinging undamped (a static feedback of
+  (s, θ) cannot damp the pole: the linearised loop has no velocity terms). Reaching the centre, which the reward
+  pays for and "near-optimal" asks, needs the velocities.
+* :class:`SwingUpTask` (``drrl/CartPoleSwingUp-v0``): the pole starts hanging down and must be swung up and held
+  upright, the model-based benchmark of PILCO and PETS, on the thesis's cart (±50 N). See its docstring for the
+  start, observation, reward, horizon and what "solved" means.
 """
 
 from __future__ import annotations
@@ -171,6 +182,68 @@ class BalanceTask:
     def reward(self, state: np.ndarray, step) -> tuple[np.ndarray, np.ndarray]:
         """(reward, terminated) of the thesis's formula 5.8."""
         return thesis_reward(state, step, self.horizon)
+
+
+@dataclass(frozen=True)
+class PartiallyObservedTask(BalanceTask):
+    """The balance task observing only (s, θ): cart position and pole angle, velocities hidden (thesis 2.1.1)."""
+
+    observation_size: ClassVar[int] = 2
+
+    def observe(self, state: np.ndarray) -> np.ndarray:
+        """(s, θ) as float32, a fresh array."""
+        return state[:, 0::2].astype(np.float32)
+
+
+SWING_UP_CART_WEIGHT = 0.25  # the cost of the cart at a track end, in units of the upright reward
+SWING_UP_SOLVED_RETURN = 160.0  # of at most 250: see SwingUpTask
+
+
+@dataclass(frozen=True)
+class SwingUpTask:
+    """Swing the pole up from hanging down and hold it upright, the cart staying on the track.
+
+    Start: s ~ U(-0.2, 0.2), θ ~ π + U(-0.2, 0.2) (hanging down), velocities 0.
+    Observation: (s, ṡ, sin θ, cos θ, θ̇), float32. The angle is given by its sine and cosine: θ itself is not
+    bounded (the pole may turn over) and a policy should not see a jump at ±π.
+    Reward at step t, after the transition (r_t ∈ [-0.25, 1]):
+
+        r_t = ½·(1 + cos θ) − 0.25·(s / 2.4)²      on the track, |s| ≤ 2.4
+        r_t = −(T − t)                              on leaving it; the episode ends there
+
+    ½·(1 + cos θ) is 1 upright and 0 hanging: a dense signal all the way up, so that a search from scratch has a
+    slope to climb. The cart term keeps the cart near the centre. Leaving the track costs 1 per remaining step,
+    more than any step on the track, so that ending the episode never pays (as 5.8's −2·(T − t) does).
+    Horizon: T = 250 steps (5 s at dt = 0.02): time to swing up (about 1–2 s with ±50 N) and to show the pole held.
+    Solved (:func:`drrl.envs.solved.swing_up_verdict`): in 50 of 50 evaluation episodes the cart stays on the
+    track and the return is at least 160 (of at most 250). Hanging still earns about 0 and a pole that keeps
+    turning over earns about half a point a step (≈ 125), so ≥ 160 needs the pole near the top most of the time.
+    """
+
+    horizon: int = 250
+    observation_size: ClassVar[int] = 5
+    start_low: ClassVar[np.ndarray] = np.array([-0.2, np.pi - 0.2])  # (s, θ); both velocities start at 0
+    start_high: ClassVar[np.ndarray] = np.array([0.2, np.pi + 0.2])
+
+    def sample_starts(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """n start states (n, 4): s ~ U(-0.2, 0.2), θ ~ U(π − 0.2, π + 0.2), velocities 0."""
+        starts = np.zeros((n, 4))
+        starts[:, 0::2] = self.start_low + (self.start_high - self.start_low) * rng.random((n, 2))
+        return starts
+
+    def observe(self, state: np.ndarray) -> np.ndarray:
+        """(s, ṡ, sin θ, cos θ, θ̇) as float32."""
+        theta = state[:, 2]
+        return np.stack([state[:, 0], state[:, 1], np.sin(theta), np.cos(theta), state[:, 3]], 1).astype(np.float32)
+
+    def reward(self, state: np.ndarray, step) -> tuple[np.ndarray, np.ndarray]:
+        """(reward, terminated) as in the class docstring."""
+        s = state[:, 0]
+        reward = 0.5 * (1.0 + np.cos(state[:, 2])) - SWING_UP_CART_WEIGHT * (s / POSITION_LIMIT) ** 2
+        terminated = np.abs(s) > POSITION_LIMIT
+        if terminated.any():
+            reward = np.where(terminated, -1.0 * (self.horizon - np.asarray(step)), reward)
+        return reward, terminated
 
 
 def _observation_space(task: CartPoleTask) -> spaces.Box:

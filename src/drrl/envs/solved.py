@@ -1,8 +1,11 @@
-"""What "solved" means, per task (../shared/reference/cartpole.md for the thesis's cart-pole)."""
+"""What "solved" means, per task (../shared/reference/cartpole.md for the thesis's cart-pole; drrl.envs.cartpole for
+the partially observed and swing-up variants)."""
 
 from __future__ import annotations
 
 import torch
+
+from drrl.envs.cartpole import SWING_UP_SOLVED_RETURN
 
 NEAR_OPTIMAL_RETURN = -50.0
 
@@ -14,4 +17,11 @@ def cartpole_verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) ->
             "near_optimal": balanced and float(episode_returns.mean()) >= NEAR_OPTIMAL_RETURN}
 
 
-VERDICTS = {"drrl/CartPole-v0": cartpole_verdict}
+def swing_up_verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) -> dict[str, bool]:
+    """solved: in every evaluation episode the cart stayed on the track and the return reached the threshold."""
+    return {"solved": not bool(terminated.any()) and bool((episode_returns >= SWING_UP_SOLVED_RETURN).all())}
+
+
+VERDICTS = {"drrl/CartPole-v0": cartpole_verdict,
+            "drrl/CartPolePO-v0": cartpole_verdict,  # the same task, seen through (s, θ) only
+            "drrl/CartPoleSwingUp-v0": swing_up_verdict}

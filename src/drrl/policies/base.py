@@ -32,8 +32,8 @@ class Policy(ABC):
         pieces = torch.split(params, self.sizes, dim=1)
         return [piece.reshape(params.shape[0], *shape) for piece, shape in zip(pieces, self.shapes)]
 
-    def initial_state(self, population: int, batch: int) -> Any:
-        """The memory at the start of an episode; None for feed-forward policies."""
+    def initial_state(self, population: int, batch: int, device: torch.device | str = "cpu") -> Any:
+        """The memory at the start of P × B fresh episodes, on ``device``; None for feed-forward policies."""
         return None
 
     @abstractmethod

@@ -1,12 +1,16 @@
-"""Compact policy specs for the command line: ``linear``, ``linear:nobias``, ``multilinear:8``, ``mlp:32,32``."""
+"""Compact policy specs for the command line: ``linear``, ``linear:nobias``, ``multilinear:8``, ``mlp:32,32``,
+``rnn:16``, ``lstm:32,32``."""
 
 from __future__ import annotations
 
 from drrl.policies.base import Policy
 from drrl.policies.feedforward import linear, mlp, multilinear
+from drrl.policies.recurrent import lstm, rnn
 
-ACCEPTED_FORMS = "linear, linear:nobias, multilinear:W[,W...], mlp:W[,W...] (W = a positive layer width)"
-POLICY_KINDS = ("linear", "multilinear", "mlp")
+ACCEPTED_FORMS = ("linear, linear:nobias, multilinear:W[,W...], mlp:W[,W...], rnn:W[,W...], lstm:W[,W...] "
+                  "(W = a positive layer width)")
+POLICY_KINDS = ("linear", "multilinear", "mlp", "rnn", "lstm")
+LAYERED = {"multilinear": multilinear, "mlp": mlp, "rnn": rnn, "lstm": lstm}  # kinds that take layer widths
 
 
 def make_policy(spec: str, observation_size: int, action_size: int) -> Policy:
@@ -16,9 +20,8 @@ def make_policy(spec: str, observation_size: int, action_size: int) -> Policy:
         if arguments not in ("", "nobias"):
             raise _malformed(spec)
         return linear(observation_size, action_size, bias=arguments != "nobias")
-    if kind in ("multilinear", "mlp"):
-        widths = _widths(spec, arguments)
-        return (multilinear if kind == "multilinear" else mlp)(observation_size, action_size, widths)
+    if kind in LAYERED:
+        return LAYERED[kind](observation_size, action_size, _widths(spec, arguments))
     raise ValueError(f"unknown policy kind {kind!r} in {spec!r}; accepted forms: {ACCEPTED_FORMS}")
 
 

@@ -55,7 +55,7 @@ def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int
                          f"need {slots}")
     action_map = ActionMap(env.single_action_space)
     weights = policy.unflatten(params)
-    state = policy.initial_state(population, episodes)
+    state = policy.initial_state(population, episodes, params.device)
     seeds = None if seed is None else episode_seeds(seed, population, episodes)
     obs, _ = env.reset(seed=seeds)
     returns = np.zeros(slots)
