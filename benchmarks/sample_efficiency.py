@@ -23,7 +23,7 @@ CRITERIA = ("balanced", "near_optimal")
 
 def first_reached(rows: list[dict], criterion: str) -> int | None:
     """Real training episodes spent when the centre first met ``criterion``; None if never."""
-    return next((row["real_episodes"] for row in rows if row.get(criterion)), None)
+    return next((row["real_episodes"] for row in rows if row.get(criterion) == 1), None)
 
 
 def median_or_miss(values: list[int | None]) -> str:

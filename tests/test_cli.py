@@ -56,9 +56,27 @@ def test_checkpoint_restores_the_search_exactly(tmp_path):
     search.load_state_dict(checkpoint["search"])
     assert torch.equal(search.center, checkpoint["center"])
     assert checkpoint["real_episodes"] == 40 and checkpoint["generation"] == 4
-    best = max(metrics(out), key=lambda row: float(row["center_return"]))
+    # the best centre met the most verdict criteria (balanced, near-optimal) and, among those, returned most
+    best = max(metrics(out), key=lambda row: (int(row["balanced"]) + int(row["near_optimal"]),
+                                              float(row["center_return"])))
     assert checkpoint["best_generation"] == int(best["generation"])
     assert checkpoint["best_center_return"] == float(best["center_return"])
+
+
+def test_measuring_every_few_generations_keeps_the_columns_and_prefers_a_balanced_centre(tmp_path):
+    result, out = train(tmp_path, "cartpole", "--budget", "160", "--popsize", "8", "--eval-episodes", "5",
+                        "--eval-every", "3", "--quiet")
+    assert result.exit_code == 0, result.output
+    rows = metrics(out)
+    assert (out / "learning_curve.png").is_file() and len(rows) == 20
+    measured = [row for row in rows if int(row["generation"]) % 3 == 0 or row["generation"] == "20"]
+    assert all(row["balanced"] in ("0", "1") for row in measured)
+    assert all(row["balanced"] == "nan" for row in rows if row not in measured)
+    balanced = [row for row in measured if row["balanced"] == "1"]
+    assert balanced, "the defaults balance the cart-pole within 160 episodes"
+    best = max(balanced, key=lambda row: (int(row["near_optimal"]), float(row["center_return"])))
+    checkpoint = RunFolder(out).load_checkpoint()
+    assert checkpoint["best_generation"] == int(best["generation"]) and checkpoint["best_center_criteria"] >= 1
 
 
 def test_eval_reports_the_cartpole_verdicts(tmp_path):
@@ -125,7 +143,8 @@ def test_non_finite_returns_stop_the_run_name_the_candidate_and_keep_the_folder(
     result, out = train(tmp_path, "--env", "drrl-test/NaNReward-v0", "--budget", "8", "--popsize", "4",
                         "--eval-episodes", "1", "--quiet")
     assert result.exit_code == 1
-    assert "candidate(s) [" in result.output and "run folder and checkpoint kept" in result.output
+    assert "generation 1: " in result.output and "candidate 0" in result.output
+    assert "run folder and checkpoint kept" in result.output
     assert RunFolder(out).load_checkpoint()["generation"] == 0
 
 

@@ -11,7 +11,7 @@ from drrl.config import TrainConfig, describe_errors, load_config_file
     ({"popsize": 7}, "symmetric sampling needs an even popsize"),
     ({"sampler": "supersymmetric", "popsize": 10}, "supersymmetric sampling needs a popsize divisible by 4"),
     ({"budget": 5, "popsize": 6}, "budget of 5 real episodes is smaller than one generation (6 candidates × 1 episode(s) each)"),
-    ({"popsiz": 10}, "popsiz: Extra inputs are not permitted"),
+    ({"popsiz": 10}, "popsiz: not a setting (did you mean popsize?)"),
 ])
 def test_invalid_settings_name_the_field_and_what_is_allowed(settings, message):
     with pytest.raises(ValidationError) as error:

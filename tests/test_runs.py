@@ -25,7 +25,7 @@ def test_truncated_checkpoint_gives_a_clear_error(tmp_path):
     run.save_checkpoint({"center": torch.zeros(100)})
     data = (run.path / CHECKPOINT).read_bytes()
     (run.path / CHECKPOINT).write_bytes(data[: len(data) // 2])
-    with pytest.raises(ValueError, match="unreadable"):
+    with pytest.raises(ValueError, match="truncated"):
         run.load_checkpoint()
 
 
@@ -45,3 +45,17 @@ def test_config_round_trips_through_the_run_folder(tmp_path):
     config = TrainConfig(policy="mlp:4", budget=40, seed=3)
     run.write_config(config)
     assert run.read_config() == config
+
+
+def test_a_checkpoint_whose_header_length_looks_like_a_pickle_still_loads(tmp_path):
+    header_length_byte = 0x80  # the byte a pickle (protocol 2 and later) starts with
+    folder = RunFolder.create(tmp_path / "run")
+    for padding in range(256):  # the JSON header's length modulo 256 is its first byte on disk
+        state = {"pad": "x" * padding, "center": torch.arange(3.0)}
+        folder.save_checkpoint(state)
+        if (folder.path / "checkpoint.safetensors").read_bytes()[0] == header_length_byte:
+            break
+    else:
+        pytest.fail("no padding gave the wanted first byte")
+    loaded = folder.load_checkpoint()
+    assert loaded["pad"] == state["pad"] and torch.equal(loaded["center"], state["center"])

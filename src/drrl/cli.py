@@ -15,7 +15,8 @@ from drrl.envs.solved import VERDICTS
 from drrl.runs import RunFolder
 from drrl.policies import ACCEPTED_FORMS
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
-from drrl.train import NonFiniteReturn, build_policy, derive_seed, measure, prepare, run
+from drrl.rollout import BACKENDS, NonFiniteOutput
+from drrl.train import Counters, Setup, build_policy, derive_seed, measure, prepare, prepare_resume, run
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
 
@@ -48,15 +49,35 @@ def main() -> None:
 @setting("eval_episodes", int, "episodes measuring the centre policy")
 @setting("eval_every", int, "generations between measurements")
 @setting("seed", int, "random seed")
+@setting("checkpoint_every", int, "generations between checkpoints")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
               help="TOML or JSON file of settings; command-line options override it.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), help="run folder  [default: runs/ENV-TIME]")
 @click.option("--quiet", is_flag=True, help="no progress bar")
-def train_command(env_name, env_option, config_file, out, quiet, **options) -> None:
-    """Train a policy with PGPE, e.g. `drrl train cartpole`."""
+@click.option("--resume", "resume_path", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              metavar="RUN", help="continue the stopped run RUN from its checkpoint, with its own settings")
+@click.option("--backend", type=click.Choice(BACKENDS), default="local", show_default=True,
+              help="where candidates are evaluated: this process, or Ray actors (pip install \"drrl[ray]\")")
+@click.option("--address", help="Ray cluster to join, e.g. 10.0.0.1:6379  [default: start a local Ray]")
+@click.option("--workers", type=click.IntRange(min=1), help="Ray actors  [default: one per CPU of the cluster]")
+def train_command(env_name, env_option, config_file, out, quiet, resume_path, backend, address, workers,
+                  **options) -> None:
+    """Train a policy with PGPE, e.g. `drrl train cartpole`; `drrl train --resume RUN` continues a stopped run."""
+    if resume_path is not None:
+        given = [name for name, value in [("ENV", env_name), ("--env", env_option), ("--config", config_file),
+                                          ("--out", out),
+                                          *((f"--{name.replace('_', '-')}", value) for name, value in options.items())]
+                 if value not in (None, False)]
+        if given:
+            raise click.UsageError(f"--resume continues RUN with the settings in its config.json; drop "
+                                   f"{', '.join(given)}")
+        return resume_run(resume_path, backend, address, workers, quiet)
     if env_name and env_option and env_name != env_option:
         raise click.UsageError(f"two environments given: {env_name!r} and --env {env_option!r}")
-    settings = load_config_file(config_file) if config_file else {}
+    try:
+        settings = load_config_file(config_file) if config_file else {}
+    except ValueError as error:
+        raise click.UsageError(str(error)) from None
     if env_name or env_option:
         settings["env"] = env_name or env_option
     settings.update({key: value for key, value in options.items() if value is not None})
@@ -67,16 +88,39 @@ def train_command(env_name, env_option, config_file, out, quiet, **options) -> N
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}"
     try:
-        setup = prepare(config)
+        setup = prepare(config, backend, address, workers)
         folder = RunFolder.create(out)
     except ValueError as error:  # unknown environment or policy, a space drrl cannot use, an occupied --out
         raise click.UsageError(str(error)) from None
+    run_and_report(setup, folder, quiet)
+
+
+def resume_run(path: Path, backend: str, address: str | None, workers: int | None, quiet: bool) -> None:
+    """`drrl train --resume RUN`: the run rebuilt at its checkpoint, metrics past it dropped, then continued."""
+    folder = RunFolder(path)
     try:
-        counters = run(setup, folder, progress=not quiet)
-    except NonFiniteReturn as error:
+        setup, counters = prepare_resume(folder, backend, address, workers)
+    except ValueError as error:
+        raise click.ClickException(f"cannot resume {path}: {error}") from None
+    total = setup.config.generations
+    if counters.generation == total:
+        setup.close()
+        return click.echo(f"{path} is complete: all {total} generations done")
+    click.echo(f"resuming {path} at generation {counters.generation + 1} of {total}")
+    run_and_report(setup, folder, quiet, counters)
+
+
+def run_and_report(setup: Setup, folder: RunFolder, quiet: bool, counters: Counters | None = None) -> None:
+    """Run a model-free training loop, then say what it did; a stopped run says how to resume it."""
+    out = folder.path
+    try:
+        counters = run(setup, folder, progress=not quiet, counters=counters)
+    except NonFiniteOutput as error:
         raise click.ClickException(f"{error}\nrun folder and checkpoint kept: {out}") from None
     except KeyboardInterrupt:
-        raise click.ClickException(f"interrupted; run folder and checkpoint kept: {out}") from None
+        generation = folder.load_checkpoint()["generation"]
+        raise click.ClickException(f"interrupted; run folder and checkpoint (generation {generation}) kept: {out}\n"
+                                   f"continue with: drrl train --resume {out}") from None
     click.echo(f"done: {counters.generation} generations, {counters.real_episodes} real episodes, "
                f"{counters.real_steps} real steps; centre policy's return {counters.rows[-1]['center_return']:.1f} "
                f"(best {counters.best_center_return:.1f}, generation {counters.best_generation})")
@@ -118,3 +162,4 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
             click.echo(f"{name.replace('_', '-') + ':':14}{'yes' if ok else 'no'}")
         click.echo(f"({kept}/{episodes} episodes kept the pole up for all 200 steps; near-optimal needs a mean "
                    f"return ≥ -50)")
+

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import json
 import tomllib
 from pathlib import Path
@@ -20,7 +21,7 @@ class TrainConfig(BaseModel):
     centre from drifting away from the optimum once there.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     env: str = "cartpole"
     policy: str = "linear:nobias"
@@ -85,14 +86,21 @@ def _one_of(value: str, choices: tuple[str, ...]) -> str:
 
 def load_config_file(path: Path) -> dict:
     """Read a TOML or JSON config file into a plain dict (validated later, with command-line overrides)."""
+    kind = "JSON" if path.suffix == ".json" else "TOML"
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as error:
         raise ValueError(f"cannot read config file {path}: {error.strerror}") from None
+    except UnicodeDecodeError as error:
+        raise ValueError(f"config file {path} is not {kind} text: byte {error.start} is not UTF-8") from None
     try:
-        return json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
+        settings = json.loads(text) if kind == "JSON" else tomllib.loads(text)
     except (json.JSONDecodeError, tomllib.TOMLDecodeError) as error:
-        raise ValueError(f"config file {path} is not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {error}") from None
+        raise ValueError(f"config file {path} is not valid {kind}: {error}") from None
+    if not isinstance(settings, dict):
+        raise ValueError(f"config file {path} must hold an object of settings (name: value), not a "
+                         f"{type(settings).__name__}")
+    return settings
 
 
 def describe_errors(error: ValidationError) -> str:
@@ -101,6 +109,15 @@ def describe_errors(error: ValidationError) -> str:
     for item in error.errors():
         field = ".".join(str(part) for part in item["loc"]) or "config"
         message = item["msg"].removeprefix("Value error, ")
+        if item["type"] == "extra_forbidden" and len(item["loc"]) == 1:
+            message = _unknown_setting(str(item["loc"][0]))
         given = f" (got {item['input']!r})" if item["loc"] else ""
         lines.append(f"{field}: {message}{given}")
     return "\n".join(lines)
+
+
+def _unknown_setting(name: str) -> str:
+    known = list(TrainConfig.model_fields)
+    close = difflib.get_close_matches(name, known, n=1)
+    return (f"not a setting{f' (did you mean {close[0]}?)' if close else ''}; the settings are: "
+            f"{', '.join(known)}")

@@ -1,28 +1,33 @@
 """The run folder a person can read: config.json, metrics.csv, checkpoint.safetensors, learning_curve.png.
 
 Checkpoints are one safetensors file: the tensors of a nested state, with everything else as JSON in the file's
-metadata. Nothing is ever pickled; a checkpoint is written to a temporary file and renamed, so a run killed while
-writing keeps its previous checkpoint.
+metadata, and a SHA-256 digest of both, so that a damaged file is refused rather than loaded. Nothing is ever
+pickled. Checkpoints and config.json are written to a temporary file and renamed, so a run killed while writing
+keeps the previous version.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
+import io
 import json
 import os
 from pathlib import Path
 from typing import Any
 
 import torch
+from pydantic import ValidationError
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 
-from drrl.config import TrainConfig
+from drrl.config import TrainConfig, describe_errors
 
 CONFIG = "config.json"
 METRICS = "metrics.csv"
 CHECKPOINT = "checkpoint.safetensors"
 CURVE = "learning_curve.png"
+PICKLE_STARTS = (b"\x80", b"PK\x03\x04")  # a pickle (protocol 2 and later); torch.save's zip archive
 
 
 class RunFolder:
@@ -41,13 +46,16 @@ class RunFolder:
         return cls(path)
 
     def write_config(self, config: TrainConfig) -> None:
-        (self.path / CONFIG).write_text(config.model_dump_json(indent=2) + "\n")
+        _write_atomically(self.path / CONFIG, config.model_dump_json(indent=2) + "\n")
 
     def read_config(self) -> TrainConfig:
         file = self.path / CONFIG
         if not file.is_file():
             raise ValueError(f"{self.path} is not a run folder: it has no {CONFIG}")
-        return TrainConfig.model_validate_json(file.read_text())
+        try:
+            return TrainConfig.model_validate_json(file.read_bytes())
+        except ValidationError as error:
+            raise ValueError(f"{file} is not a valid drrl config:\n{describe_errors(error)}") from None
 
     def append_metrics(self, row: dict[str, Any]) -> None:
         file = self.path / METRICS
@@ -62,24 +70,40 @@ class RunFolder:
         with (self.path / METRICS).open(newline="") as handle:
             return [{key: float(value) for key, value in row.items()} for row in csv.DictReader(handle)]
 
+    def truncate_metrics(self, generations: int) -> list[dict[str, float]]:
+        """Keep the rows of generations 1..``generations`` (drop those written after the last checkpoint)."""
+        file = self.path / METRICS
+        if generations == 0:
+            file.unlink(missing_ok=True)
+            return []
+        try:
+            with file.open(newline="") as handle:
+                header, *rows = list(csv.reader(handle))
+            kept = rows[:generations]
+            whole = [row for row in kept if len(row) == len(header)]
+            numbers = [[float(value) for value in row] for row in whole]
+        except (OSError, ValueError, csv.Error) as error:
+            raise ValueError(f"{file} is unreadable, so the run cannot be resumed exactly: {error}") from None
+        if [int(row[0]) for row in numbers] != list(range(1, generations + 1)):
+            raise ValueError(f"{file} holds {len(whole)} whole rows before the checkpoint's generation {generations}; "
+                             f"it needs one per generation to resume exactly")
+        text = io.StringIO()
+        csv.writer(text).writerows([header, *kept])
+        _write_atomically(file, text.getvalue())
+        return [dict(zip(header, row)) for row in numbers]
+
     def save_checkpoint(self, state: dict[str, Any]) -> None:
         tensors: dict[str, torch.Tensor] = {}
-        tree = _encode(state, "", tensors)
+        tree = json.dumps(_encode(state, "", tensors))
         temporary = self.path / (CHECKPOINT + ".tmp")
-        save_file(tensors, temporary, metadata={"state": json.dumps(tree)})
+        save_file(tensors, temporary, metadata={"state": tree, "sha256": _digest(tree, tensors)})
         os.replace(temporary, self.path / CHECKPOINT)
 
     def load_checkpoint(self) -> dict[str, Any]:
         file = self.path / CHECKPOINT
         if not file.is_file():
             raise ValueError(f"{self.path} has no checkpoint ({CHECKPOINT})")
-        try:
-            with safe_open(file, framework="pt") as handle:
-                tensors = {key: handle.get_tensor(key) for key in handle.keys()}
-                tree = json.loads(handle.metadata()["state"])
-            return _decode(tree, tensors)
-        except (SafetensorError, OSError, KeyError, TypeError, ValueError) as error:
-            raise ValueError(f"checkpoint {file} is unreadable (truncated or corrupted?): {error}") from None
+        return read_checkpoint(file)
 
     def plot_learning_curve(self, title: str) -> Path:
         """The centre policy's return against real training episodes, as the thesis's Figure 5.2."""
@@ -103,6 +127,59 @@ class RunFolder:
         figure.savefig(out, dpi=120)
         plt.close(figure)
         return out
+
+
+def read_checkpoint(file: Path) -> dict[str, Any]:
+    """A checkpoint's state; a damaged, foreign or pickled file raises ValueError saying which it is."""
+    _check_layout(file)
+    try:
+        with safe_open(file, framework="pt") as handle:
+            tensors = {key: handle.get_tensor(key) for key in handle.keys()}
+            metadata = handle.metadata() or {}
+    except (SafetensorError, OSError) as error:
+        raise ValueError(f"checkpoint {file} is truncated or has bytes appended: its data do not match its header "
+                         f"({error})") from None
+    if "state" not in metadata:
+        raise ValueError(f"checkpoint {file} holds no drrl state: not a drrl checkpoint")
+    if "sha256" in metadata and metadata["sha256"] != _digest(metadata["state"], tensors):
+        raise ValueError(f"checkpoint {file} is corrupted: its contents do not match their SHA-256 digest")
+    try:
+        return _decode(json.loads(metadata["state"]), tensors)
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as error:
+        raise ValueError(f"checkpoint {file} has a malformed state ({type(error).__name__}: {error})") from None
+
+
+def _check_layout(file: Path) -> None:
+    """Refuse files that are not safetensors at all: empty, a pickle, no JSON header, a header cut short."""
+    size = file.stat().st_size
+    with file.open("rb") as handle:
+        start = handle.read(9)
+    if start[8:] != b"{":  # a safetensors file: 8 bytes of header length, then the JSON header
+        if start.startswith(PICKLE_STARTS):
+            raise ValueError(f"checkpoint {file} is a pickle or torch.save file; drrl never loads pickles")
+        if size < 9:
+            raise ValueError(f"checkpoint {file} is {'empty' if size == 0 else f'truncated to {size} bytes'}")
+        raise ValueError(f"checkpoint {file} is not a safetensors file (no JSON header after its first 8 bytes)")
+    header = int.from_bytes(start[:8], "little")
+    if 8 + header > size:
+        raise ValueError(f"checkpoint {file} is truncated: its header alone needs {header} bytes, the file holds "
+                         f"{size - 8} after the header's length")
+
+
+def _digest(tree: str, tensors: dict[str, torch.Tensor]) -> str:
+    """SHA-256 of the JSON state and of every tensor's name, dtype, shape and bytes."""
+    digest = hashlib.sha256(tree.encode())
+    for key in sorted(tensors):
+        tensor = tensors[key].contiguous()
+        digest.update(f"{key}|{tensor.dtype}|{tuple(tensor.shape)}".encode())
+        digest.update(tensor.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return digest.hexdigest()
+
+
+def _write_atomically(file: Path, text: str) -> None:
+    temporary = file.with_name(file.name + ".tmp")
+    temporary.write_text(text)
+    os.replace(temporary, file)
 
 
 def _encode(value: Any, key: str, tensors: dict[str, torch.Tensor]) -> Any:

@@ -25,3 +25,9 @@ def swing_up_verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) ->
 VERDICTS = {"drrl/CartPole-v0": cartpole_verdict,
             "drrl/CartPolePO-v0": cartpole_verdict,  # the same task, seen through (s, θ) only
             "drrl/CartPoleSwingUp-v0": swing_up_verdict}
+
+
+def verdict_names(env_id: str) -> tuple[str, ...]:
+    """The criteria ``env_id``'s verdict reports (metrics.csv columns); none for an env without a verdict."""
+    verdict = VERDICTS.get(env_id)
+    return () if verdict is None else tuple(verdict(torch.zeros(1, 1), torch.zeros(1, 1, dtype=torch.bool)))

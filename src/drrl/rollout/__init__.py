@@ -1,5 +1,8 @@
-"""Evaluating candidates on batched environments."""
+"""Evaluating candidates on batched environments, here (local) or on a Ray cluster."""
 
-from drrl.rollout.evaluate import Evaluation, evaluate, episode_seeds
+from drrl.rollout.backend import BACKENDS, Backend, Workload, make_backend
+from drrl.rollout.evaluate import Evaluation, NonFiniteOutput, episode_seeds, evaluate
+from drrl.rollout.local import LocalBackend
 
-__all__ = ["Evaluation", "episode_seeds", "evaluate"]
+__all__ = ["BACKENDS", "Backend", "Evaluation", "LocalBackend", "NonFiniteOutput", "Workload", "episode_seeds",
+           "evaluate", "make_backend"]

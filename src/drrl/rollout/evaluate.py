@@ -2,6 +2,7 @@
 
 The env must hold P·E sub-environments: candidate p's episode e runs in slot p·E + e. Every slot runs one episode;
 a slot whose episode has ended is masked (its later rewards and steps are not counted) while the others go on.
+A NaN or infinite observation or reward of a running episode stops the rollout with :class:`NonFiniteOutput`.
 """
 
 from __future__ import annotations
@@ -14,6 +15,10 @@ from gymnasium.vector import VectorEnv
 
 from drrl.envs.batch import ActionMap
 from drrl.policies.base import Policy
+
+
+class NonFiniteOutput(RuntimeError):
+    """An environment returned a NaN or infinite observation or reward during a running episode."""
 
 
 @dataclass(frozen=True)
@@ -29,6 +34,13 @@ class Evaluation:
     def returns(self) -> torch.Tensor:
         """Each candidate's mean return over its E episodes, shape (P,)."""
         return self.episode_returns.mean(dim=1)
+
+    @staticmethod
+    def concat(parts: list[Evaluation]) -> Evaluation:
+        """One evaluation of all candidates from evaluations of consecutive chunks of them."""
+        return Evaluation(episode_returns=torch.cat([part.episode_returns for part in parts]),
+                          terminated=torch.cat([part.terminated for part in parts]),
+                          steps=sum(part.steps for part in parts), episodes=sum(part.episodes for part in parts))
 
 
 def episode_seeds(seed: int, population: int, episodes: int) -> list[int]:
@@ -58,6 +70,7 @@ def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int
     state = policy.initial_state(population, episodes, params.device)
     seeds = None if seed is None else episode_seeds(seed, population, episodes)
     obs, _ = env.reset(seed=seeds)
+    _check_finite("observation", obs, np.ones(slots, dtype=bool), 0, episodes)
     returns = np.zeros(slots)
     running = np.ones(slots, dtype=bool)
     terminated_slots = np.zeros(slots, dtype=bool)
@@ -67,6 +80,8 @@ def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int
         obs_t = torch.as_tensor(obs, dtype=torch.float32, device=params.device).view(population, episodes, -1)
         raw, state = policy.act(weights, obs_t, state)
         obs, reward, terminated, truncated, _ = env.step(action_map(raw.reshape(slots, -1)))
+        _check_finite("reward", reward, running, t + 1, episodes)
+        _check_finite("observation", obs, running, t + 1, episodes)
         steps += int(np.count_nonzero(running))
         np.add(returns, reward, out=returns, where=running)
         terminated_slots |= running & terminated
@@ -76,3 +91,16 @@ def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int
     return Evaluation(episode_returns=episode_returns,
                       terminated=torch.as_tensor(terminated_slots).view(population, episodes),
                       steps=steps, episodes=slots)
+
+
+def _check_finite(what: str, values: np.ndarray, running: np.ndarray, step: int, episodes: int) -> None:
+    """Raise :class:`NonFiniteOutput` naming the first running slot whose ``values`` (per slot) are not finite."""
+    if np.isfinite(values).all():
+        return
+    finite = np.isfinite(np.asarray(values).reshape(len(running), -1)).all(axis=1)
+    bad = np.flatnonzero(running & ~finite)
+    if bad.size:
+        slot = int(bad[0])
+        raise NonFiniteOutput(f"the environment returned a non-finite {what} {np.asarray(values)[slot]} at step "
+                              f"{step} of candidate {slot // episodes}'s episode {slot % episodes} "
+                              f"({bad.size} slot(s) affected)")

@@ -1,0 +1,24 @@
+"""The local backend: all candidates in one batched rollout in this process."""
+
+from __future__ import annotations
+
+import torch
+
+from drrl.envs.batch import make_batch_env
+from drrl.rollout.backend import Workload
+from drrl.rollout.evaluate import Evaluation, evaluate
+
+
+class LocalBackend:
+    """One batched env of P·E sub-environments, made once and reused every generation."""
+
+    def __init__(self, workload: Workload):
+        self.workload = workload
+        self.env = make_batch_env(workload.env_id, workload.popsize * workload.episodes)
+
+    def evaluate(self, params: torch.Tensor, seed: int) -> Evaluation:
+        work = self.workload
+        return evaluate(work.policy, params, self.env, work.episodes, seed=seed, max_steps=work.max_steps)
+
+    def close(self) -> None:
+        self.env.close()

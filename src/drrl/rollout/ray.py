@@ -1,0 +1,132 @@
+"""The Ray backend: a generation's candidates split into chunks, each evaluated by a Ray actor holding a batched env.
+
+Chunk k always holds the same candidates (consecutive slices of the population, one per worker) and is evaluated
+with the generation's seed, so the returns are those of the local backend bit for bit, whichever actor ran it.
+A chunk whose actor died is detected by ``ray.get`` raising :class:`ray.exceptions.RayActorError`
+(``ActorDiedError``); the chunk is run again on the next actor, up to :data:`MAX_ATTEMPTS` times, and the dead actor
+is replaced by a new one. Parameters and results cross between processes through Ray's object store; nothing
+is read back from disk.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import warnings
+
+import numpy as np
+import torch
+
+from drrl.envs.batch import make_batch_env
+from drrl.rollout.backend import Workload, chunk_bounds
+from drrl.rollout.evaluate import Evaluation, evaluate
+
+INSTALL_HINT = '--backend ray needs Ray, which is not installed: pip install "drrl[ray]"'
+MAX_ATTEMPTS = 4  # runs of one chunk in one generation before the run gives up
+START_TIMEOUT = 120  # seconds for the actors to start
+
+try:
+    import ray
+    from ray.exceptions import GetTimeoutError, RayActorError, RayTaskError
+except ImportError as error:
+    raise ImportError(INSTALL_HINT) from error
+
+
+@ray.remote(num_cpus=1)
+class RolloutWorker:
+    """One Ray actor: evaluates chunks of candidates on batched envs it keeps, one per chunk size."""
+
+    def __init__(self, workload: Workload, candidates: int):
+        self.workload = workload
+        self.envs = {}
+        self._env(candidates)  # made now, so a bad env fails at start-up and the first generation is not slower
+
+    def _env(self, candidates: int):
+        if candidates not in self.envs:
+            self.envs[candidates] = make_batch_env(self.workload.env_id, candidates * self.workload.episodes)
+        return self.envs[candidates]
+
+    def evaluate(self, params: np.ndarray, seed: int) -> Evaluation:
+        work = self.workload
+        env = self._env(params.shape[0])
+        return evaluate(work.policy, torch.tensor(params), env, work.episodes, seed=seed,
+                        max_steps=work.max_steps)
+
+    def pid(self) -> int:
+        return os.getpid()
+
+
+class RayBackend:
+    """Candidates in chunks over ``workers`` Ray actors (default: one per CPU of the cluster).
+
+    Connects to the cluster at ``address``, or starts a local Ray when there is none; a Ray already initialised in
+    this process is used as it is (and left running on close).
+    """
+
+    def __init__(self, workload: Workload, address: str | None = None, workers: int | None = None):
+        self.workload = workload
+        self._owns_ray = not ray.is_initialized()
+        if self._owns_ray:
+            try:
+                ray.init(address=address, include_dashboard=False, logging_level=logging.WARNING)
+            except ConnectionError as error:
+                raise ValueError(f"cannot join the Ray cluster at {address}: {error}") from None
+        cpus = int(ray.cluster_resources().get("CPU", 0))
+        if (workers or 1) > cpus:
+            self.close()
+            raise ValueError(f"{workers or 1} Ray worker(s) need as many CPUs, but the Ray cluster has {cpus}")
+        self.chunks = chunk_bounds(workload.popsize, min(workers or cpus, workload.popsize))
+        self.workers = [RolloutWorker.remote(workload, stop - start) for start, stop in self.chunks]
+        self.lost = 0  # chunks run again because their worker died
+        try:
+            ray.get([worker.pid.remote() for worker in self.workers], timeout=START_TIMEOUT)
+        except GetTimeoutError:
+            self.close()
+            raise ValueError(f"the Ray workers did not start within {START_TIMEOUT} s; is the cluster busy?") from None
+
+    def evaluate(self, params: torch.Tensor, seed: int) -> Evaluation:
+        parts = [params[start:stop].detach().cpu().numpy() for start, stop in self.chunks]
+        pending = dict(self._submit(index, 0, parts, seed) for index in range(len(parts)))
+        results: list[Evaluation | None] = [None] * len(parts)
+        while pending:
+            [ready], _ = ray.wait(list(pending), num_returns=1)
+            index, attempt, worker = pending.pop(ready)
+            try:
+                results[index] = ray.get(ready)
+            except RayTaskError as error:  # the env or the policy raised: the same error as the local backend's
+                raise error.cause from None
+            except RayActorError as error:
+                if attempt + 1 >= MAX_ATTEMPTS:
+                    raise RuntimeError(f"chunk {index} lost its Ray worker {MAX_ATTEMPTS} times; giving up: "
+                                       f"{error}") from None
+                self.lost += 1
+                start, stop = self.chunks[index]
+                warnings.warn(f"a Ray worker died while evaluating candidates {start}–{stop - 1}; running them "
+                              f"again on another worker", stacklevel=2)
+                self._replace(worker)
+                pending.update([self._submit(index, attempt + 1, parts, seed)])
+        return Evaluation.concat(results)
+
+    def _submit(self, index: int, attempt: int, parts: list[np.ndarray], seed: int):
+        """Chunk ``index`` on its own worker first, then on the next ones round the pool: (ref, what it runs)."""
+        worker = self.workers[(index + attempt) % len(self.workers)]
+        return worker.evaluate.remote(parts[index], seed), (index, attempt, worker)
+
+    def _replace(self, dead) -> None:
+        """A new actor in the place of ``dead`` (unless another chunk's failure replaced it already)."""
+        for slot, worker in enumerate(self.workers):
+            if worker is dead:
+                ray.kill(dead)
+                start, stop = self.chunks[slot]
+                self.workers[slot] = RolloutWorker.remote(self.workload, stop - start)
+
+    def pids(self) -> list[int]:
+        """The process ids of the workers (for tests that kill one)."""
+        return ray.get([worker.pid.remote() for worker in self.workers])
+
+    def close(self) -> None:
+        for worker in getattr(self, "workers", []):
+            ray.kill(worker)
+        self.workers = []
+        if self._owns_ray:
+            ray.shutdown()

@@ -1,0 +1,159 @@
+"""Bad input is refused with its own message: malformed configs, damaged checkpoints, non-finite env output."""
+
+import json
+import shutil
+import sys
+
+import gymnasium
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+from safetensors.torch import save_file
+
+from drrl.cli import main
+from drrl.runs import CHECKPOINT, CONFIG, METRICS, RunFolder
+
+
+def train(*args):
+    return CliRunner().invoke(main, ["train", *args])
+
+
+@pytest.mark.parametrize("name, text, message", [
+    ("typo.toml", "popsise = 8\n", "popsise: not a setting (did you mean popsize?); the settings are: env, policy"),
+    ("type.toml", 'popsize = "eight"\n', "popsize: Input should be a valid integer, unable to parse string as an "
+                                         "integer (got 'eight')"),
+    ("range.toml", "eval_every = 0\n", "eval_every: Input should be greater than or equal to 1 (got 0)"),
+    ("infinite.toml", "sigma_init = inf\n", "sigma_init: Input should be a finite number (got inf)"),
+    ("choice.json", '{"sampler": "genetic"}', "sampler: 'genetic' is not one of: reinforce, symmetric, "
+                                             "supersymmetric (got 'genetic')"),
+    ("pairs.toml", "popsize = 7\n", "symmetric sampling needs an even popsize (pairs μ ± ε), got 7"),
+    ("truncated.toml", "popsize = 8\nbudget = ", "is not valid TOML: Invalid value (at end of document)"),
+    ("truncated.json", '{"popsize": 8, "bud', "is not valid JSON: Unterminated string"),
+    ("binary.toml", b"\x00\xff\xfe garbage", "is not TOML text: byte 1 is not UTF-8"),
+    ("list.json", "[1, 2]", "must hold an object of settings (name: value), not a list"),
+    ("missing.toml", None, "cannot read config file"),
+])
+def test_malformed_config_files_are_refused_each_with_its_own_message(tmp_path, name, text, message):
+    path = tmp_path / name
+    if isinstance(text, bytes):
+        path.write_bytes(text)
+    elif text is not None:
+        path.write_text(text)
+    result = train("--config", str(path), "--out", str(tmp_path / "run"), "--quiet")
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A small finished run, copied by each test before it damages the copy."""
+    out = tmp_path_factory.mktemp("good") / "run"
+    result = train("cartpole", "--budget", "24", "--popsize", "8", "--eval-episodes", "2", "--quiet", "--out", str(out))
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def rewrite_checkpoint(folder: RunFolder, change) -> None:
+    state = folder.load_checkpoint()
+    change(state)
+    folder.save_checkpoint(state)
+
+
+def flip_last_data_byte(file):
+    data = bytearray(file.read_bytes())
+    data[-1] ^= 0x01
+    file.write_bytes(bytes(data))
+
+
+DAMAGE = {
+    "empty": (lambda f: (f.path / CHECKPOINT).write_bytes(b""), "is empty"),
+    "cut in its header": (lambda f: (f.path / CHECKPOINT).write_bytes((f.path / CHECKPOINT).read_bytes()[:40]),
+                          "is truncated: its header alone needs"),
+    "cut in its data": (lambda f: (f.path / CHECKPOINT).write_bytes((f.path / CHECKPOINT).read_bytes()[:-30]),
+                        "is truncated or has bytes appended"),
+    "not safetensors": (lambda f: (f.path / CHECKPOINT).write_text("centre = [1, 2, 3]\n" * 4),
+                        "is not a safetensors file"),
+    "a pickle": (lambda f: torch.save({"center": torch.zeros(3)}, f.path / CHECKPOINT),
+                 "is a pickle or torch.save file; drrl never loads pickles"),
+    "a flipped bit": (lambda f: flip_last_data_byte(f.path / CHECKPOINT),
+                      "is corrupted: its contents do not match their SHA-256 digest"),
+    "foreign safetensors": (lambda f: save_file({"weight": torch.zeros(2)}, f.path / CHECKPOINT),
+                            "holds no drrl state: not a drrl checkpoint"),
+    "model-based": (lambda f: rewrite_checkpoint(f, lambda s: s.update(kind="model-based")),
+                    "checkpoint is of kind 'model-based'; --resume continues 'model-free' runs only"),
+    "an old format": (lambda f: rewrite_checkpoint(f, lambda s: [s.pop(k) for k in ("wall_time", "real_steps")]),
+                      "checkpoint lacks wall_time, real_steps"),
+    "a negative counter": (lambda f: rewrite_checkpoint(f, lambda s: s.update(generation=-2)),
+                           "checkpoint's generation is -2; it must be a whole number >= 0"),
+    "a NaN centre": (lambda f: rewrite_checkpoint(f, lambda s: s["center"].fill_(float("nan"))),
+                     "checkpoint's center must be a 1-D tensor of finite numbers"),
+    "another policy": (lambda f: (f.path / CONFIG).write_text(
+        (f.path / CONFIG).read_text().replace('"linear:nobias"', '"mlp:2"')),
+        "checkpoint is for num_params 4 but the run's config gives 13"),
+    "another sampler": (lambda f: (f.path / CONFIG).write_text(
+        (f.path / CONFIG).read_text().replace('"symmetric"', '"reinforce"')),
+        "state is for sampler='symmetric' but this PGPE has sampler='reinforce'"),
+    "a truncated config": (lambda f: (f.path / CONFIG).write_text((f.path / CONFIG).read_text()[:50]),
+                           "config.json is not a valid drrl config:\nconfig: Invalid JSON: EOF while parsing"),
+    "an edited config": (lambda f: (f.path / CONFIG).write_text(
+        json.dumps({**json.loads((f.path / CONFIG).read_text()), "popsize": 0})),
+        "popsize: Input should be greater than or equal to 2 (got 0)"),
+    "no metrics": (lambda f: (f.path / METRICS).unlink(), "metrics.csv is unreadable"),
+    "missing metrics rows": (lambda f: (f.path / METRICS).write_text(
+        "".join((f.path / METRICS).read_text().splitlines(keepends=True)[:2])),
+        "holds 1 whole rows before the checkpoint's generation 3; it needs one per generation"),
+}
+
+
+@pytest.mark.parametrize("damage", list(DAMAGE))
+def test_resume_refuses_a_damaged_run_folder_each_with_its_own_message(tmp_path, finished, damage):
+    spoil, message = DAMAGE[damage]
+    out = tmp_path / "run"
+    shutil.copytree(finished, out)
+    spoil(RunFolder(out))
+    result = train("--resume", str(out))
+    assert result.exit_code == 1 and f"cannot resume {out}: " in result.output, result.output
+    assert message in result.output, result.output
+
+
+def test_eval_refuses_a_damaged_checkpoint(tmp_path, finished):
+    out = tmp_path / "run"
+    shutil.copytree(finished, out)
+    flip_last_data_byte(out / CHECKPOINT)
+    result = CliRunner().invoke(main, ["eval", str(out)])
+    assert result.exit_code == 1 and "is corrupted: its contents do not match their SHA-256 digest" in result.output
+
+
+class NaNObservationEnv(gymnasium.Env):
+    """Observes NaN once its first action is positive."""
+
+    observation_space = gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.ones(2, np.float32), {}
+
+    def step(self, action):
+        value = np.nan if action[0] > 0 else 1.0
+        return np.full(2, value, np.float32), 0.0, False, False, {}
+
+
+def test_a_non_finite_observation_stops_the_run_with_a_message_and_a_checkpoint(tmp_path):
+    gymnasium.register("drrl-test/NaNObservation-v0", entry_point=NaNObservationEnv, max_episode_steps=5)
+    out = tmp_path / "run"
+    result = train("--env", "drrl-test/NaNObservation-v0", "--budget", "8", "--popsize", "4", "--eval-episodes", "1",
+                   "--quiet", "--out", str(out))
+    assert result.exit_code == 1, result.output
+    assert "generation 1: the environment returned a non-finite observation [nan nan] at step 1 of candidate" in (
+        result.output)
+    assert f"run folder and checkpoint kept: {out}" in result.output
+    assert RunFolder(out).load_checkpoint()["generation"] == 0
+
+
+def test_the_ray_backend_without_ray_says_how_to_install_it(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray now fails, as when it is not installed
+    monkeypatch.delitem(sys.modules, "drrl.rollout.ray", raising=False)
+    result = train("cartpole", "--backend", "ray", "--quiet", "--out", str(tmp_path / "run"))
+    assert result.exit_code == 2 and 'needs Ray, which is not installed: pip install "drrl[ray]"' in result.output
