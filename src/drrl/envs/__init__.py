@@ -12,6 +12,7 @@ The environments end episodes at the task's horizon themselves, so no TimeLimit 
 
 import gymnasium
 
+from drrl.envs import baxter as _baxter  # noqa: F401  (registers drrl/BaxterReach*-v0; MuJoCo loads on make)
 from drrl.envs.cartpole import PartiallyObservedTask, SwingUpTask
 
 gymnasium.register(

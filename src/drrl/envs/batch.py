@@ -15,7 +15,10 @@ from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
 ENV_ALIASES = {"cartpole": "drrl/CartPole-v0", "cartpole-po": "drrl/CartPolePO-v0",
-               "cartpole-swingup": "drrl/CartPoleSwingUp-v0"}
+               "cartpole-swingup": "drrl/CartPoleSwingUp-v0",
+               "baxter-reach": "drrl/BaxterReach-v0", "baxter-reach-dense": "drrl/BaxterReachDense-v0",
+               "baxter-reach-right": "drrl/BaxterReachRight-v0",
+               "baxter-reach-right-random": "drrl/BaxterReachRightRandom-v0"}
 
 
 def resolve_env_id(name: str) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import torch
 
+from drrl.envs.baxter.task import reach_verdict
 from drrl.envs.cartpole import SWING_UP_SOLVED_RETURN
 
 NEAR_OPTIMAL_RETURN = -50.0
@@ -24,7 +25,9 @@ def swing_up_verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) ->
 
 VERDICTS = {"drrl/CartPole-v0": cartpole_verdict,
             "drrl/CartPolePO-v0": cartpole_verdict,  # the same task, seen through (s, θ) only
-            "drrl/CartPoleSwingUp-v0": swing_up_verdict}
+            "drrl/CartPoleSwingUp-v0": swing_up_verdict,
+            **{env_id: reach_verdict for env_id in ("drrl/BaxterReach-v0", "drrl/BaxterReachRight-v0",
+                                                   "drrl/BaxterReachRightRandom-v0")}}  # reward 5.10 only
 
 
 def verdict_names(env_id: str) -> tuple[str, ...]:

@@ -1,0 +1,120 @@
+"""Videos of a trained policy (``drrl render``): one episode of a run's centre policy as a GIF or an MP4.
+
+Any environment that draws ``rgb_array`` frames works: drrl's cart-poles draw in NumPy, Baxter through MuJoCo's
+OpenGL renderer, headless (EGL, else OSMesa: :mod:`drrl.envs.baxter.render`). GIFs are written with Pillow
+(installed with matplotlib); MP4s (H.264) with imageio-ffmpeg, the optional extra ``drrl[render]``, which ships its
+own ffmpeg binary.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+
+from drrl.envs.batch import ActionMap, observation_size
+from drrl.policies import Policy, make_policy
+from drrl.runs import RunFolder
+
+VIDEO_FORMATS = (".gif", ".mp4")
+INSTALL_MP4 = "writing MP4 needs imageio-ffmpeg: pip install 'drrl[render]' (or write a .gif)"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One recorded episode: its frames, their rate and what the episode earned."""
+
+    frames: list[np.ndarray]
+    fps: float
+    episode_return: float
+    steps: int
+    info: dict[str, Any]  # the last step's info (Baxter: "distance", the largest end-point distance in metres)
+
+
+def check_video_path(path: Path | str) -> Path:
+    """``path`` if drrl can write a video there; raises ValueError (format) or ImportError (MP4 without the extra)
+    before any work is done."""
+    path = Path(path)
+    if path.suffix.lower() not in VIDEO_FORMATS:
+        raise ValueError(f"unsupported video format {path.suffix!r} of {path}; use one of {', '.join(VIDEO_FORMATS)}")
+    if path.suffix.lower() == ".mp4":
+        _mp4_writer()
+    return path
+
+
+def _mp4_writer():
+    """The ``imageio_ffmpeg`` module, or an ImportError that says how to install it."""
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        raise ImportError(INSTALL_MP4) from None
+    return imageio_ffmpeg
+
+
+def write_video(frames: list[np.ndarray], path: Path | str, fps: float) -> Path:
+    """Write RGB frames (height, width, 3), uint8, to ``path``: a looping GIF or an MP4."""
+    path = check_video_path(path)
+    if not frames:
+        raise ValueError("no frames to write")
+    if path.suffix.lower() == ".gif":
+        from PIL import Image
+
+        images = [Image.fromarray(frame) for frame in frames]
+        images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
+        return path
+    height, width = frames[0].shape[:2]
+    writer = _mp4_writer().write_frames(str(path), (width, height), fps=fps, macro_block_size=8, quality=7)
+    writer.send(None)  # start ffmpeg
+    try:
+        for frame in frames:
+            writer.send(np.ascontiguousarray(frame).tobytes())
+    finally:
+        writer.close()
+    return path
+
+
+@torch.inference_mode()
+def record_episode(policy: Policy, center: torch.Tensor, env: gymnasium.Env, *, seed: int = 0, fps: float = 25.0,
+                   max_steps: int | None = None) -> Recording:
+    """Run the policy ``center`` (n,) for one episode of ``env`` (render_mode "rgb_array"), keeping a frame at the
+    start, then every k-th step, k = the env's ``render_fps`` / ``fps`` rounded (at least 1), and at the end."""
+    period = max(1, round(env.metadata.get("render_fps", fps) / fps))
+    action_map = ActionMap(env.action_space)
+    weights, state = policy.unflatten(center.reshape(1, -1)), policy.initial_state(1, 1)
+    obs, info = env.reset(seed=seed)
+    frames = [env.render()]
+    total, steps, done = 0.0, 0, False
+    while not done and (max_steps is None or steps < max_steps):
+        raw, state = policy.act(weights, torch.as_tensor(obs, dtype=torch.float32).view(1, 1, -1), state)
+        obs, reward, terminated, truncated, info = env.step(action_map(raw.reshape(1, -1))[0])
+        total, steps, done = total + float(reward), steps + 1, bool(terminated or truncated)
+        if steps % period == 0 or done:
+            frames.append(env.render())
+    return Recording(frames, env.metadata.get("render_fps", fps) / period, total, steps, info)
+
+
+def render_run(run_path: Path | str, out: Path | str, *, final: bool = False, seed: int = 0, fps: float = 25.0,
+               max_steps: int | None = None, **env_options: Any) -> Recording:
+    """Record one episode of a run folder's best measured (or, with ``final``, last) centre policy to ``out``, cut
+    at ``max_steps`` (default: the run's own ``max_steps``, if it had one).
+
+    ``env_options`` go to ``gymnasium.make`` (Baxter: ``width``, ``height``, ``shadows``)."""
+    out = check_video_path(out)
+    folder = RunFolder(Path(run_path))
+    config, checkpoint = folder.read_config(), folder.load_checkpoint()
+    try:
+        env = gymnasium.make(checkpoint["env_id"], render_mode="rgb_array", **env_options)
+    except TypeError as error:  # an option this env does not take, e.g. shadows for the cart-pole
+        raise ValueError(f"{checkpoint['env_id']} cannot render with {env_options}: {error}") from None
+    try:
+        policy = make_policy(config.policy, observation_size(env.observation_space), ActionMap(env.action_space).size)
+        center = checkpoint["center"] if final else checkpoint["best_center"]
+        recording = record_episode(policy, center, env, seed=seed, fps=fps, max_steps=max_steps or config.max_steps)
+    finally:
+        env.close()
+    write_video(recording.frames, out, recording.fps)
+    return recording

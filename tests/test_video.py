@@ -1,0 +1,44 @@
+"""`drrl render`'s video module on the cart-pole, which draws its frames in NumPy (Baxter's: tests/test_baxter.py)."""
+
+from __future__ import annotations
+
+import sys
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from drrl.policies import linear
+from drrl.video import check_video_path, record_episode, write_video
+
+
+def test_a_cartpole_episode_becomes_a_gif_at_half_the_control_rate(tmp_path):
+    env = gym.make("drrl/CartPole-v0", render_mode="rgb_array")
+    policy = linear(4, 1)
+    recording = record_episode(policy, torch.zeros(policy.num_params), env, seed=3, fps=25, max_steps=10)
+    env.close()
+    assert recording.steps == 10 and recording.fps == 25  # the cart-pole runs at 50 steps per second
+    assert len(recording.frames) == 6 and recording.frames[0].shape == (400, 600, 3)  # the start and every 2nd step
+    write_video(recording.frames, tmp_path / "cartpole.gif", recording.fps)
+    with Image.open(tmp_path / "cartpole.gif") as gif:
+        assert gif.n_frames == 6 and gif.info["duration"] == 40
+
+
+def test_video_paths_are_checked_before_any_work(tmp_path, monkeypatch):
+    with pytest.raises(ValueError, match=r"unsupported video format '\.webm'.*\.gif, \.mp4"):
+        check_video_path(tmp_path / "x.webm")
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # as if the render extra were not installed
+    with pytest.raises(ImportError, match=r"pip install 'drrl\[render\]'"):
+        check_video_path(tmp_path / "x.mp4")
+    assert check_video_path(tmp_path / "x.GIF").name == "x.GIF"
+    with pytest.raises(ValueError, match="no frames"):
+        write_video([], tmp_path / "x.gif", fps=25)
+
+
+def test_an_mp4_is_written_with_imageio_ffmpeg(tmp_path):
+    pytest.importorskip("imageio_ffmpeg", reason="the render extra is not installed")
+    frames = [np.full((64, 96, 3), 40 * k, dtype=np.uint8) for k in range(5)]
+    write_video(frames, tmp_path / "clip.mp4", fps=25)
+    assert (tmp_path / "clip.mp4").read_bytes()[4:8] == b"ftyp"  # an MP4 container
