@@ -17,6 +17,8 @@ from drrl.policies import ACCEPTED_FORMS
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.train import Counters, Setup, build_policy, derive_seed, measure, prepare, prepare_resume, run
+from drrl.cli_model_based import compare_command, model_based_options, pop_model_options, report, with_model_based
+from drrl.model_based import ModelDiverged, prepare_model_based, run_model_based
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
 
@@ -60,12 +62,13 @@ def main() -> None:
               help="where candidates are evaluated: this process, or Ray actors (pip install \"drrl[ray]\")")
 @click.option("--address", help="Ray cluster to join, e.g. 10.0.0.1:6379  [default: start a local Ray]")
 @click.option("--workers", type=click.IntRange(min=1), help="Ray actors  [default: one per CPU of the cluster]")
+@model_based_options
 def train_command(env_name, env_option, config_file, out, quiet, resume_path, backend, address, workers,
-                  **options) -> None:
+                  model_based, **options) -> None:
     """Train a policy with PGPE, e.g. `drrl train cartpole`; `drrl train --resume RUN` continues a stopped run."""
     if resume_path is not None:
         given = [name for name, value in [("ENV", env_name), ("--env", env_option), ("--config", config_file),
-                                          ("--out", out),
+                                          ("--out", out), ("--model-based", model_based),
                                           *((f"--{name.replace('_', '-')}", value) for name, value in options.items())]
                  if value not in (None, False)]
         if given:
@@ -80,7 +83,9 @@ def train_command(env_name, env_option, config_file, out, quiet, resume_path, ba
         raise click.UsageError(str(error)) from None
     if env_name or env_option:
         settings["env"] = env_name or env_option
+    model_options = pop_model_options(options)
     settings.update({key: value for key, value in options.items() if value is not None})
+    settings = with_model_based(settings, model_based, model_options)
     try:
         config = TrainConfig.model_validate(settings)
     except ValidationError as error:
@@ -88,11 +93,20 @@ def train_command(env_name, env_option, config_file, out, quiet, resume_path, ba
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}"
     try:
-        setup = prepare(config, backend, address, workers)
+        if config.model_based and backend != "local":
+            raise ValueError("--backend ray evaluates model-free runs only")
+        setup = prepare_model_based(config) if config.model_based else prepare(config, backend, address, workers)
         folder = RunFolder.create(out)
     except ValueError as error:  # unknown environment or policy, a space drrl cannot use, an occupied --out
         raise click.UsageError(str(error)) from None
-    run_and_report(setup, folder, quiet)
+    if not config.model_based:
+        return run_and_report(setup, folder, quiet)
+    try:
+        return report(run_model_based(setup, folder, progress=not quiet), out)
+    except ModelDiverged as error:
+        raise click.ClickException(f"{error}\nrun folder and checkpoint kept: {out}") from None
+    except KeyboardInterrupt:
+        raise click.ClickException(f"interrupted; run folder and checkpoint kept: {out}") from None
 
 
 def resume_run(path: Path, backend: str, address: str | None, workers: int | None, quiet: bool) -> None:
@@ -192,3 +206,5 @@ def render_command(run_path: Path, out: Path, seed: int, final: bool, fps: int, 
                f"return {recording.episode_return:.1f}"
                + ("" if distance is None else f", final end-point distance {float(distance):.3f} m"))
 
+
+main.add_command(compare_command)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from drrl.models.settings import ModelBasedSettings
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 
 
@@ -42,6 +43,7 @@ class TrainConfig(BaseModel):
     max_steps: int | None = Field(None, ge=1, description="cut episodes longer than this")
     seed: int = Field(0, ge=0)
     device: str = "cpu"
+    model_based: ModelBasedSettings | None = Field(None, description="set: model-based PGPE (drrl.model_based)")
 
     @field_validator("sampler")
     @classmethod
@@ -64,7 +66,7 @@ class TrainConfig(BaseModel):
             raise ValueError(f"symmetric sampling needs an even popsize (pairs μ ± ε), got {self.popsize}")
         if self.sampler == "supersymmetric" and self.popsize % 4:
             raise ValueError(f"supersymmetric sampling needs a popsize divisible by 4, got {self.popsize}")
-        if self.budget < self.episodes_per_generation:
+        if self.model_based is None and self.budget < self.episodes_per_generation:
             raise ValueError(f"budget of {self.budget} real episodes is smaller than one generation "
                              f"({self.popsize} candidates × {self.episodes_per_candidate} episode(s) each)")
         return self

@@ -1,0 +1,98 @@
+"""Real training episodes until the centre policy is balanced / near-optimal on the thesis cart-pole (5.1), or the
+swing-up is solved, with model-based PGPE (drrl.model_based) at its defaults; with --quality, the model-quality plot.
+
+Every iteration measures the centre policy on 50 fresh real episodes (counted apart from training). Prints one row
+per seed, then medians over seeds; a seed that never gets there counts as worse than any that does.
+
+    python benchmarks/model_based.py --seeds 10
+    python benchmarks/model_based.py --env cartpole-swingup --policy mlp:16 --budget 30 --seeds 10
+    python benchmarks/model_based.py --seeds 1 --quality model_quality.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+
+import numpy as np
+import torch
+
+from drrl.envs.batch import resolve_env_id
+from drrl.envs.solved import VERDICTS
+from drrl.model_based import model_based_config, train_model_based
+from drrl.models import EpisodeBuffer, ModelBasedSettings
+from drrl.models.quality import model_quality_report
+
+
+def first_reached(rows: list[dict], criterion: str) -> int | None:
+    """Real training episodes spent when the centre first met ``criterion``; None if never."""
+    return next((row["real_episodes"] for row in rows if row.get(criterion)), None)
+
+
+def median_or_miss(values: list) -> str:
+    median = statistics.median(float("inf") if v is None else v for v in values)
+    return "not reached" if median == float("inf") else f"{median:g}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="cartpole")
+    parser.add_argument("--policy", default="linear:nobias")
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--budget", type=int, default=20)
+    parser.add_argument("--model-based", default="{}", help="JSON of ModelBasedSettings fields to change")
+    parser.add_argument("--search", default="{}", help="JSON of TrainConfig fields to change")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (tiny matrices: 1 is fastest)")
+    parser.add_argument("--rows", help="append every run's metrics rows to this JSON-lines file")
+    parser.add_argument("--quality", help="write the k-step model-quality plot of the first seed's data here")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    criteria = list(VERDICTS[resolve_env_id(args.env)](torch.zeros(1, 1), torch.zeros(1, 1, dtype=torch.bool)))
+    reached = {criterion: [] for criterion in criteria}
+    walls, cpus, finals = [], [], []
+    print(f"| seed | {' | '.join(f'episodes to {c}' for c in criteria)} | final centre return | wall s | cpu s |")
+    print("| --- " * (len(criteria) + 4) + "|")
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
+        config = model_based_config(json.loads(args.model_based), env=args.env, policy=args.policy,
+                                    budget=args.budget, seed=seed, **json.loads(args.search))
+        wall, cpu = time.perf_counter(), time.process_time()
+        result = train_model_based(config)
+        walls.append(time.perf_counter() - wall)
+        cpus.append(time.process_time() - cpu)
+        finals.append(result.rows[-1]["center_return"])
+        if args.rows:
+            with open(args.rows, "a") as handle:
+                handle.write(json.dumps({"seed": seed, "env": args.env, "rows": result.rows}) + "\n")
+        for criterion in criteria:
+            reached[criterion].append(first_reached(result.rows, criterion))
+        print(f"| {seed} | {' | '.join(str(reached[c][-1]) for c in criteria)} | {finals[-1]:.1f} "
+              f"| {walls[-1]:.0f} | {cpus[-1]:.0f} |", flush=True)
+        if args.quality and seed == args.first_seed:
+            quality_plot(result.buffer, args.quality, seed, config.model_based)
+    print()
+    for criterion in criteria:
+        hits = sum(v is not None for v in reached[criterion])
+        print(f"median real episodes to {criterion}: {median_or_miss(reached[criterion])} "
+              f"({hits}/{args.seeds} seeds)")
+    print(f"median final centre return {statistics.median(finals):.1f}; median wall time "
+          f"{statistics.median(walls):.0f} s, cpu time {statistics.median(cpus):.0f} s per run "
+          f"({torch.get_num_threads()} torch thread(s))")
+
+
+def quality_plot(buffer: EpisodeBuffer, path: str, seed: int, settings: ModelBasedSettings) -> None:
+    """Hold out every fourth real episode of a run and compare the model variants on them."""
+    episodes = buffer.episodes
+    held_out = EpisodeBuffer(episodes[3::4])
+    training = EpisodeBuffer([e for i, e in enumerate(episodes) if i % 4 != 3])
+    curves = model_quality_report(training, held_out, path, max_k=50, hidden=settings.hidden,
+                                  settings=settings.fit_settings(True, learn_reward=False), seed=seed)
+    for label, errors in curves.items():
+        print(f"{label}: median k-step error at k = 1, 10, 25, 50: {np.round(errors[[0, 9, 24, 49]], 3).tolist()}")
+    print(f"model-quality plot: {path}")
+
+
+if __name__ == "__main__":
+    main()

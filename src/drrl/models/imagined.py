@@ -1,0 +1,153 @@
+"""The learned model as a batched environment: a Gymnasium ``VectorEnv`` that PGPE searches in unchanged.
+
+Every sub-environment starts from a real start observation drawn from the buffer, with a member of the ensemble
+drawn for that episode, and then lives in the model: each step feeds the current (predicted) observation and the
+policy's action to the model, which is dynamical consistency (3.3.3) at imagination time. Rewards and ends come
+either from the task's reward in closed form applied to the predicted observations (``known_reward``, e.g. the
+thesis's 5.8) or from the model's reward and end heads. Nothing here touches the real environment: imagined
+steps cost no real samples, and the training loop counts them apart.
+
+Episode seeds (``reset(seed=[...])``, one per sub-environment) fix each episode's start and member, so candidates
+of one PGPE generation are compared on the same imagined starts, as they are on real ones.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from drrl.envs.cartpole import BalanceTask, SwingUpTask
+from drrl.models.ensemble import Ensemble
+
+RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def balance_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The thesis's reward 5.8 on predicted observations (s, ṡ, θ, θ̇), or (s, θ) when partially observed: 5.8
+    reads only s and θ."""
+    states = np.zeros((len(observations), 4))
+    states[:, 0::2] = observations[:, [0, -2 if observations.shape[1] == 4 else 1]]
+    return BalanceTask().reward(states, steps)
+
+
+def swing_up_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The swing-up task's reward on predicted observations (s, ṡ, sin θ, cos θ, θ̇)."""
+    s, s_dot, sin, cos, theta_dot = observations.astype(np.float64).T
+    return SwingUpTask().reward(np.stack([s, s_dot, np.arctan2(sin, cos), theta_dot], 1), steps)
+
+
+# Tasks whose reward and end are known in closed form of (next observation, 1-based step): drrl's cart-poles.
+KNOWN_REWARDS: dict[str, RewardFunction] = {"drrl/CartPole-v0": balance_reward, "drrl/CartPolePO-v0": balance_reward,
+                                            "drrl/CartPoleSwingUp-v0": swing_up_reward}
+
+
+class ImaginedEnv(VectorEnv):
+    """``num_envs`` imagined episodes stepped together by an :class:`Ensemble`, with next-step autoreset.
+
+    Args:
+        model: the world model(s); a member is drawn per episode.
+        start_observations: real start observations (S, o) to reset from.
+        action_space: the real env's single action space (the policy's actions pass through unchanged).
+        horizon: steps after which an imagined episode is truncated (the real task's).
+        known_reward: reward and end in closed form; None to use the model's own heads (end when p̂ > 0.5).
+        disagreement_penalty: λ in r ← r − λ · disagreement (:meth:`Ensemble.disagreement`), 0 for none.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, model: Ensemble, start_observations: np.ndarray, num_envs: int, action_space: spaces.Space,
+                 horizon: int, known_reward: RewardFunction | None = None, disagreement_penalty: float = 0.0):
+        starts = np.asarray(start_observations, dtype=np.float32)
+        if starts.ndim != 2 or len(starts) == 0:
+            raise ValueError(f"start_observations must be a non-empty (S, o) array, got shape {starts.shape}")
+        self.model = model
+        self.num_envs = num_envs
+        self.horizon = horizon
+        self.known_reward = known_reward
+        self.disagreement_penalty = disagreement_penalty
+        self.device = next(model.parameters()).device
+        self._starts = torch.as_tensor(starts, device=self.device)
+        bound = np.finfo(np.float32).max
+        self.single_observation_space = spaces.Box(-bound, bound, (starts.shape[1],), np.float32)
+        self.single_action_space = action_space
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(action_space, num_envs)
+        self._rng = np.random.default_rng()
+        self._observation: torch.Tensor | None = None
+        self._state: list[list[torch.Tensor]] = []
+        self._member = torch.zeros(num_envs, dtype=torch.long, device=self.device)
+        self._envs = torch.arange(num_envs, device=self.device)
+        self._observed = torch.ones(num_envs, dtype=torch.bool, device=self.device)  # o_t is a real start
+        self.elapsed_steps = np.zeros(num_envs, dtype=np.int64)
+        self._ended = np.zeros(num_envs, dtype=bool)
+
+    def reset(self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None):
+        """Start every env from a real start observation, with a member drawn per env."""
+        if seed is None or isinstance(seed, (int, np.integer)):
+            if seed is not None:
+                self._rng = np.random.default_rng(int(seed))
+            starts, members = self._draw(self._rng, self.num_envs)
+        else:
+            if len(seed) != self.num_envs:
+                raise ValueError(f"expected one seed per env ({self.num_envs}), got {len(seed)}")
+            drawn = {s: self._draw(np.random.default_rng(s), 1) for s in set(map(int, seed))}
+            starts = np.concatenate([drawn[int(s)][0] for s in seed])
+            members = np.concatenate([drawn[int(s)][1] for s in seed])
+            self._rng = np.random.default_rng([int(s) for s in seed])  # for autoresets only
+        self._observation = self._starts[torch.as_tensor(starts, device=self.device)]
+        self._member = torch.as_tensor(members, device=self.device)
+        self._state = self.model.initial_state(self.num_envs)
+        self._observed[:] = True
+        self.elapsed_steps[:] = 0
+        self._ended[:] = False
+        return self._observation.cpu().numpy(), {}
+
+    @torch.inference_mode()
+    def step(self, actions):
+        """One imagined step of every env; envs that ended on the previous step restart instead (their action is
+        ignored, reward 0, terminated and truncated False: Gymnasium's next-step autoreset)."""
+        if self._observation is None:
+            raise RuntimeError("call reset() before step()")
+        action = torch.as_tensor(np.asarray(actions, dtype=np.float32), device=self.device).reshape(self.num_envs, -1)
+        prediction, self._state = self.model.step(self._observation, action, self._state, self._observed)
+        own = (self._member, self._envs)  # each env's own member
+        self._observation = prediction.observations[own]
+        self.elapsed_steps += 1
+        if self.known_reward is not None:
+            reward, terminated = self.known_reward(self._observation.cpu().numpy(), self.elapsed_steps)
+        else:
+            reward = prediction.rewards[own].cpu().numpy().astype(np.float64)
+            terminated = prediction.ends[own].cpu().numpy() > 0.5
+        if self.disagreement_penalty:
+            reward = reward - self.disagreement_penalty * self.model.disagreement(prediction).cpu().numpy()
+        truncated = self.elapsed_steps >= self.horizon
+        self._observed[:] = False
+        restarting = self._ended.nonzero()[0]
+        if restarting.size:
+            self._restart(restarting)
+            reward[restarting], terminated[restarting], truncated[restarting] = 0.0, False, False
+        self._ended = terminated | truncated
+        return self._observation.cpu().numpy(), reward, terminated, truncated, {}
+
+    def _draw(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """n (start index, member) pairs."""
+        return rng.integers(len(self._starts), size=n), rng.integers(len(self.model), size=n)
+
+    def _restart(self, envs: np.ndarray) -> None:
+        starts, members = self._draw(self._rng, len(envs))
+        index = torch.as_tensor(envs, device=self.device)
+        # out of place: the observations handed out by the previous step must not change
+        self._observation = self._observation.index_put((index,), self._starts[torch.as_tensor(starts,
+                                                                                               device=self.device)])
+        self._member[index] = torch.as_tensor(members, device=self.device)
+        self._observed[index] = True
+        self.elapsed_steps[envs] = 0
+        for member_state in self._state:
+            for tensor in member_state:
+                tensor[index] = 0.0

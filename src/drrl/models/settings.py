@@ -1,0 +1,94 @@
+"""The settings of model-based PGPE: a typed, validated record that ``TrainConfig.model_based`` holds.
+
+In a model-based run (``drrl.model_based``) the ``TrainConfig`` fields keep their meaning where they can: ``budget``
+is the real training episodes to spend, ``eval_episodes`` the real episodes that measure the centre policy, and
+the search settings (policy, sampler, optimizer, σ, step sizes) describe PGPE, which now runs inside the learned
+model: ``popsize`` × ``episodes_per_candidate`` *imagined* episodes a generation, ``generations`` generations an
+iteration. :data:`MODEL_BASED_DEFAULTS` are the ``TrainConfig`` values a model-based run starts from.
+"""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
+from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS
+
+REWARD_MODES = ("auto", "known", "learned")
+
+# TrainConfig values for a model-based run: 20 real episodes; PGPE in the model with 20 candidates × 10 imagined
+# episodes (many imagined episodes per candidate are free, and average out the start states).
+MODEL_BASED_DEFAULTS = {"popsize": 20, "episodes_per_candidate": 10, "budget": 20}
+
+
+class ModelBasedSettings(BaseModel):
+    """The world model, its fitting, and the data loop around PGPE.
+
+    reward: "known" (the task's reward in closed form on predicted observations), "learned" (the model's reward
+    and end heads) or "auto": known where drrl knows it (``drrl.models.imagined.KNOWN_REWARDS``), learned
+    elsewhere. Known is the default where possible because the thesis's 5.8 is discontinuous in the state (0
+    inside |s|, |θ| ≤ 0.05, −1 outside) and depends on the step t, which the model does not observe: a learned head
+    could only blur it, while the closed form is exact and free.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    initial_episodes: int = Field(2, ge=1, description="real episodes of the first iteration (explorers μ ± ε)")
+    episodes_per_iteration: int = Field(2, ge=1, description="real episodes of every later iteration (μ, μ ± ε)")
+    generations: int = Field(40, ge=1, description="most PGPE generations inside the model per iteration")
+    patience: int = Field(10, ge=1, description="stop the in-model search when the candidates' mean imagined "
+                                                "return has not improved over this many generations")
+    model_kind: str = "rnn"
+    hidden: tuple[int, ...] = Field((64,), min_length=1, description="widths of the stacked layers")
+    ensemble_size: int = Field(1, ge=1)
+    unfold: int = Field(4, ge=1, description="observed steps of a training window (3.3.1)")
+    overshoot: int = Field(16, ge=0, description="steps past them with targets (3.3.2)")
+    future_inputs: str = "predictions"
+    reward: str = "auto"
+    disagreement_penalty: float = Field(0.0, ge=0)
+    model_optimizer: str = "adam_lambda"
+    model_lr: float = Field(1e-2, gt=0)
+    fit_batch_size: int = Field(128, ge=1)
+    fit_updates: int = Field(1000, ge=1, description="most gradient steps of the first fit")
+    refit_updates: int = Field(400, ge=1, description="most gradient steps of every later fit, which starts from "
+                                                      "the previous model's weights")
+
+    @field_validator("model_kind")
+    @classmethod
+    def _known_kind(cls, value: str) -> str:
+        return _one_of(value, MODEL_KINDS)
+
+    @field_validator("future_inputs")
+    @classmethod
+    def _known_future_inputs(cls, value: str) -> str:
+        return _one_of(value, FUTURE_INPUTS)
+
+    @field_validator("reward")
+    @classmethod
+    def _known_reward_mode(cls, value: str) -> str:
+        return _one_of(value, REWARD_MODES)
+
+    @field_validator("model_optimizer")
+    @classmethod
+    def _known_optimizer(cls, value: str) -> str:
+        return _one_of(value, MODEL_OPTIMIZERS)
+
+    @field_validator("hidden")
+    @classmethod
+    def _positive_widths(cls, value: tuple[int, ...]) -> tuple[int, ...]:
+        if min(value) < 1:
+            raise ValueError(f"every layer width must be >= 1, got {value}")
+        return value
+
+    def fit_settings(self, first: bool, learn_reward: bool) -> FitSettings:
+        """How to fit the model in the first iteration (``first``) or a later one."""
+        return FitSettings(unfold=self.unfold, overshoot=self.overshoot, learn_reward=learn_reward,
+                           optimizer=self.model_optimizer, lr=self.model_lr, batch_size=self.fit_batch_size,
+                           max_updates=self.fit_updates if first else self.refit_updates,
+                           validate_every=min(100, self.fit_updates if first else self.refit_updates))
+
+
+def _one_of(value: str, choices: tuple[str, ...]) -> str:
+    if value not in choices:
+        raise ValueError(f"{value!r} is not one of: {', '.join(choices)}")
+    return value

@@ -1,0 +1,193 @@
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+from pydantic import ValidationError
+
+from drrl.cli import main
+from drrl.compare import MODEL_BASED, compare, method_config
+from drrl.config import TrainConfig
+from drrl.model_based import fitting_settings, model_based_config, prepare_model_based, train_model_based
+from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings
+from drrl.runs import RunFolder
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """Tiny matrices: one thread is fastest, and immune to a busy machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+# 6 real episodes (2 + 2 + 2), a small model fitted briefly, 12 generations of 10 candidates × 4 imagined episodes.
+TINY_MODEL = dict(hidden=(16,), unfold=2, overshoot=6, fit_updates=100, refit_updates=80, generations=12,
+                  patience=12)
+SMALL = model_based_config(TINY_MODEL, popsize=10, episodes_per_candidate=4, budget=6, eval_episodes=10, seed=0)
+# Runs that only need to work, not to learn: a few updates and generations.
+QUICK_MODEL = {**TINY_MODEL, "fit_updates": 30, "refit_updates": 30, "generations": 3, "patience": 3}
+
+
+@pytest.fixture(scope="module")
+def small_run():
+    return train_model_based(SMALL)
+
+
+def test_model_based_pgpe_raises_the_real_return_on_a_small_budget(small_run):
+    returns = [row["center_return"] for row in small_run.rows]
+    assert len(returns) == 3  # 2 + 2 + 2 real episodes
+    assert returns[-1] > returns[0] + 50
+    assert returns[-1] > -200  # the zero policy, where the search starts, fails every episode (< -200)
+
+
+def test_model_based_counts_real_imagined_and_evaluation_episodes_apart(small_run):
+    rows = small_run.rows
+    assert [row["real_episodes"] for row in rows] == [2, 4, 6]
+    assert small_run.real_episodes == len(small_run.buffer) == 6
+    assert small_run.real_steps == small_run.buffer.num_steps == rows[-1]["real_steps"]
+    assert [row["eval_episodes"] for row in rows] == [10, 20, 30]
+    per_iteration = 10 * 4 * 12  # popsize × imagined episodes per candidate × generations
+    assert [row["imagined_episodes"] for row in rows] == [per_iteration, 2 * per_iteration, 3 * per_iteration]
+    assert rows[-1]["imagined_steps"] > rows[-1]["imagined_episodes"]  # imagined episodes last > 1 step
+    assert [row["fit_updates"] for row in rows] == [100, 80, 80]  # the first fit, then warm-started refits
+
+
+def test_the_in_model_search_stops_early_once_it_stops_improving():
+    config = model_based_config({**QUICK_MODEL, "generations": 200}, popsize=10,
+                                episodes_per_candidate=2, budget=2, eval_episodes=5)
+    row = train_model_based(config).rows[0]
+    assert 3 <= row["generations"] < 200
+    assert row["imagined_episodes"] == row["generations"] * 10 * 2
+
+
+def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
+    short = EpisodeBuffer([Episode(np.zeros((9, 4), np.float32), np.zeros((8, 1), np.float32),
+                                   np.zeros(8, np.float32), True)])
+    settings = fitting_settings(FitSettings(unfold=2, overshoot=16), short)
+    assert settings.overshoot == 6 and settings.unfold == 2
+
+
+@pytest.mark.parametrize("model_based, message", [
+    ({"model_kind": "gru"}, "model_based.model_kind: 'gru' is not one of: rnn, lstm"),
+    ({"overshoot": -1}, "model_based.overshoot: Input should be greater than or equal to 0"),
+    ({"hidden": [16, 0]}, "model_based.hidden: every layer width must be >= 1"),
+    ({"ensemble_size": 0}, "model_based.ensemble_size"),
+    ({"reward": "guess"}, "model_based.reward: 'guess' is not one of: auto, known, learned"),
+    ({"unknown": 1}, "model_based.unknown: Extra inputs are not permitted"),
+])
+def test_model_based_settings_are_validated_with_field_value_and_choices(model_based, message):
+    from drrl.config import describe_errors
+
+    with pytest.raises(ValidationError) as error:
+        model_based_config(model_based)
+    assert message in describe_errors(error.value)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(env="Pendulum-v1", model_based={"reward": "known"}), "no closed-form reward is known"),
+    (dict(budget=1), "fewer than model_based.initial_episodes"),
+    (dict(model_based=None, budget=40), "model-free config"),
+])
+def test_model_based_runs_are_checked_before_any_work(change, message):
+    config = TrainConfig.model_validate({**SMALL.model_dump(), **change})
+    with pytest.raises(ValueError, match=message):
+        prepare_model_based(config)
+
+
+# ------------------------------------------------------------------------------------------------ the command
+def tiny_config(tmp_path):
+    path = tmp_path / "tiny.json"
+    path.write_text(json.dumps({"model_based": QUICK_MODEL, "eval_episodes": 5, "popsize": 8,
+                                "episodes_per_candidate": 2}))
+    return path
+
+
+def test_train_model_based_writes_the_run_folder_and_eval_reads_it(tmp_path):
+    out = tmp_path / "run"
+    result = CliRunner().invoke(main, ["train", "cartpole", "--model-based", "--budget", "4", "--popsize", "10",
+                                       "--model-hidden", "16", "--overshoot", "6", "--model-kind", "lstm",
+                                       "--ensemble", "2", "--generations", "2",
+                                       "--config", str(tiny_config(tmp_path)), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "4 real episodes" in result.output and "imagined steps apart" in result.output
+    assert {p.name for p in out.iterdir()} == {"config.json", "metrics.csv", "checkpoint.safetensors",
+                                               "learning_curve.png"}
+    config = RunFolder(out).read_config()
+    assert config.model_based.model_kind == "lstm" and config.model_based.ensemble_size == 2
+    assert config.model_based.hidden == (16,) and config.model_based.overshoot == 6
+    with (out / "metrics.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(row["real_episodes"]) for row in rows] == [2, 4]
+    assert int(rows[-1]["real_steps"]) > 0 and int(rows[-1]["imagined_steps"]) > int(rows[-1]["real_steps"])
+    checkpoint = RunFolder(out).load_checkpoint()
+    assert checkpoint["real_episodes"] == 4 and checkpoint["real_steps"] == int(rows[-1]["real_steps"])
+    assert checkpoint["buffer"]["lengths"].sum() == checkpoint["real_steps"]
+    assert any(key.startswith("members.1.") for key in checkpoint["model"])  # both ensemble members
+    evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "3"])
+    assert evaluation.exit_code == 0 and "balanced:" in evaluation.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--overshoot", "4"], "--overshoot only apply to a model-based run; add --model-based"),
+    (["--model-based", "--model-hidden", "16,x"], "--model-hidden: '16,x' is not a comma-separated list"),
+    (["--model-based", "--overshoot", "-2"], "model_based.overshoot: Input should be greater than or equal to 0"),
+    (["--model-based", "--model-kind", "gru"], "'gru' is not one of 'rnn', 'lstm'"),
+    (["--model-based", "--budget", "1"], "fewer than model_based.initial_episodes"),
+])
+def test_train_refuses_bad_model_based_options(tmp_path, args, message):
+    result = CliRunner().invoke(main, ["train", "cartpole", *args, "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_diverging_model_stops_the_run_and_keeps_the_data_and_the_model(tmp_path, monkeypatch):
+    import drrl.models.ensemble as ensemble
+
+    monkeypatch.setattr(ensemble, "fit", lambda *args, **kwargs: FitReport(7, float("nan"), 1.0, 0, "diverged"))
+    out = tmp_path / "run"
+    result = CliRunner().invoke(main, ["train", "cartpole", "--model-based", "--budget", "4",
+                                       "--config", str(tiny_config(tmp_path)), "--out", str(out), "--quiet"])
+    assert result.exit_code == 1 and "loss turned non-finite" in result.output
+    assert "run folder and checkpoint kept" in result.output
+    checkpoint = RunFolder(out).load_checkpoint()
+    assert checkpoint["real_episodes"] == 2 and len(checkpoint["buffer"]["lengths"]) == 2
+    assert checkpoint["model"] and checkpoint["generation"] == 1
+
+
+def test_compare_writes_one_png_and_one_csv_with_every_method(tmp_path):
+    result = CliRunner().invoke(main, ["compare", "--seeds", "2", "--budget", "16", "--model-based-budget", "2",
+                                       "--config", str(tiny_config(tmp_path)), "--out", str(tmp_path / "cmp")])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (tmp_path / "cmp").iterdir()) == ["compare.csv", "compare.png"]
+    with (tmp_path / "cmp" / "compare.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    methods = {row["method"] for row in rows}
+    assert methods == {"REINFORCE-PGPE", "SyS-PGPE", "super-symmetric PGPE", "model-based PGPE"}
+    assert all(row["seeds"] == "2" for row in rows)
+    assert all(float(row["se_low"]) <= float(row["mean_return"]) <= float(row["se_high"]) for row in rows)
+    assert max(int(row["real_episodes"]) for row in rows if row["method"] == MODEL_BASED) == 2
+    assert max(int(row["real_episodes"]) for row in rows if row["method"] == "SyS-PGPE") == 16
+
+
+def test_compare_averages_seeds_on_a_common_grid_of_real_episodes(tmp_path, monkeypatch):
+    import drrl.compare as module
+
+    runs = {0: [(8, -300.0), (16, -100.0)], 1: [(8, -200.0), (24, 0.0)]}
+    monkeypatch.setattr(module, "run_method", lambda method, seed, budget, settings: runs[seed])
+    curve, = compare(tmp_path, seeds=2, methods=("SyS-PGPE",))
+    assert curve.real_episodes.tolist() == [8, 16, 24]
+    assert curve.mean.tolist() == [-250.0, -150.0, -50.0]  # each run held at its last measurement
+    assert np.allclose(curve.high - curve.mean, [50.0, 50.0, 50.0])  # standard error of two values: |a − b| / 2
+
+
+def test_compare_configs_keep_shared_settings_and_set_each_method():
+    settings = {"policy": "linear", "popsize": 6, "model_based": {"hidden": [8]}}
+    assert method_config("REINFORCE-PGPE", 1, 60, settings).sampler == "reinforce"
+    assert method_config("super-symmetric PGPE", 1, 60, settings).popsize == 8  # rounded up to a multiple of 4
+    model_based = method_config(MODEL_BASED, 1, 10, settings)
+    assert model_based.model_based.hidden == (8,) and model_based.budget == 10 and model_based.policy == "linear"
+    assert isinstance(method_config("SyS-PGPE", 1, 60, settings), TrainConfig)

@@ -1,0 +1,263 @@
+import warnings
+
+import gymnasium
+import numpy as np
+import pytest
+import torch
+
+from drrl.envs.batch import make_batch_env
+from drrl.envs.cartpole import BalanceTask, PartiallyObservedTask, SwingUpTask
+from drrl.models import (KNOWN_REWARDS, Ensemble, Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv,
+                         WorldModel)
+from drrl.models import fit as fit_module
+from drrl.models.fit import fit
+from drrl.models.quality import k_step_errors, model_quality_report
+from drrl.policies import linear
+from drrl.rollout import evaluate
+
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """Tiny matrices: one thread is fastest, and immune to a busy machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def random_inputs(batch=3, length=7, observation_size=4, action_size=1, seed=0):
+    generator = torch.Generator().manual_seed(seed)
+    return (torch.randn(batch, length, observation_size, generator=generator),
+            torch.randn(batch, length, action_size, generator=generator))
+
+
+def linear_system_episodes(count, steps, seed):
+    """o_{t+1} = A o_t + B a_t: a damped oscillator driven by random actions."""
+    angle = 0.3
+    a = 0.97 * np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    b = np.array([[0.0], [0.2]])
+    rng = np.random.default_rng(seed)
+    episodes = []
+    for _ in range(count):
+        observations = [rng.uniform(-1, 1, 2)]
+        actions = rng.uniform(-1, 1, (steps, 1))
+        for action in actions:
+            observations.append(a @ observations[-1] + b @ action)
+        episodes.append(Episode(np.array(observations, np.float32), actions.astype(np.float32),
+                                np.zeros(steps, np.float32), False))
+    return episodes
+
+
+# ------------------------------------------------------------------------------------------------ the network
+@pytest.mark.parametrize("kind, hidden", [("rnn", (8,)), ("lstm", (8,)), ("rnn", (8, 6)), ("lstm", (8, 6))])
+def test_unfolding_and_overshooting_give_one_prediction_per_step(kind, hidden):
+    model = WorldModel(4, 1, hidden, kind)
+    observations, actions = random_inputs(batch=3, length=7)
+    prediction = model.unfold(observations, actions, observed_steps=3)  # 3 observed + 4 overshooting steps
+    assert prediction.observations.shape == (3, 7, 4)
+    assert prediction.rewards.shape == prediction.ends.shape == (3, 7)
+    assert ((prediction.ends > 0) & (prediction.ends < 1)).all()
+    assert len(model.initial_state(5)) == len(hidden) * (1 if kind == "rnn" else 2)
+
+
+@pytest.mark.parametrize("kind", ["rnn", "lstm"])
+def test_the_gradient_of_the_last_overshooting_step_reaches_the_first_unfolded_step(kind):
+    model = WorldModel(4, 1, (8, 8), kind)
+    observations, actions = random_inputs(length=10)
+    observations.requires_grad_(True)
+    model.unfold(observations, actions, observed_steps=4).observations[:, -1].sum().backward()
+    assert observations.grad[:, 0].abs().sum() > 0  # back-propagation through all 10 shared-weight copies
+    assert model.layers[0].weight_hh.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("future_inputs", ["predictions", "zeros"])
+def test_the_overshooting_part_reads_the_models_predictions_not_the_observations(future_inputs):
+    model = WorldModel(4, 1, (8,), future_inputs=future_inputs)
+    observations, actions = random_inputs(length=8)
+    prediction = model.unfold(observations, actions, observed_steps=3)
+    changed = observations.clone()
+    changed[:, 3:] += 10.0  # observations of the future part: must not be read
+    torch.testing.assert_close(model.unfold(changed, actions, observed_steps=3).observations,
+                               prediction.observations)
+    # and the prediction of each future step is fed back: unroll by hand
+    state, previous = model.initial_state(3), None
+    for t in range(8):
+        fed = observations[:, t] if t < 3 else previous.observations
+        previous, state = model.step(fed, actions[:, t], state, t < 3)
+        torch.testing.assert_close(previous.observations, prediction.observations[:, t])
+        torch.testing.assert_close(previous.rewards, prediction.rewards[:, t])
+    # the observed part is read
+    changed = observations.clone()
+    changed[:, 2] += 1.0
+    assert not torch.allclose(model.unfold(changed, actions, observed_steps=3).observations[:, 5],
+                              prediction.observations[:, 5])
+
+
+def test_zero_future_inputs_ignore_the_fed_back_observation():
+    model = WorldModel(2, 1, (8,), future_inputs="zeros")
+    state = model.initial_state(1)
+    action = torch.zeros(1, 1)
+    first, _ = model.step(torch.tensor([[1.0, 2.0]]), action, state, observed=False)
+    second, _ = model.step(torch.tensor([[-3.0, 0.5]]), action, state, observed=False)
+    # same network output (the change), added to different bases
+    torch.testing.assert_close(first.observations - torch.tensor([[1.0, 2.0]]),
+                               second.observations - torch.tensor([[-3.0, 0.5]]))
+    observed, _ = model.step(torch.tensor([[-3.0, 0.5]]), action, state, observed=True)
+    assert not torch.allclose(observed.observations, second.observations)
+
+
+@pytest.mark.parametrize("kind", ["rnn", "lstm"])
+def test_the_model_learns_a_known_linear_system(kind):
+    torch.manual_seed(0)
+    training, held_out = EpisodeBuffer(linear_system_episodes(8, 40, seed=1)), EpisodeBuffer(
+        linear_system_episodes(2, 40, seed=2))
+    model = WorldModel(2, 1, (32,), kind)
+    model.set_scales(training.scales())
+    untrained = k_step_errors(model, held_out, 10)
+    report = fit(model, training, FitSettings(unfold=2, overshoot=6, learn_reward=False, lr=2e-2, batch_size=256,
+                                              max_updates=100, validate_every=25, patience=20))
+    errors = k_step_errors(model, held_out, 10)  # in units of the per-step change
+    assert report.stop == "max_updates" and report.valid_loss < 1.0
+    assert errors[0] < 0.3 and errors[-1] < 0.5 and errors[-1] < untrained[-1] / 10
+
+
+# ------------------------------------------------------------------------------------------------ data
+def test_windows_align_targets_and_mask_steps_past_the_end():
+    observations = np.arange(6, dtype=np.float32)[:, None]  # o_0..o_5: 5 steps
+    episode = Episode(observations, np.zeros((5, 1), np.float32), np.arange(1, 6, dtype=np.float32), True)
+    windows = EpisodeBuffer([episode]).windows(unfold=2, overshoot=2)
+    assert len(windows) == 4  # starts 0..3: every start with 2 observed steps inside the episode
+    assert windows.observations[:, :, 0].tolist()[0] == [0, 1, 2, 3]
+    assert windows.next_observations[:, :, 0].tolist()[0] == [1, 2, 3, 4]
+    assert windows.mask.tolist()[3] == [1, 1, 0, 0]  # start 3: steps 3, 4 inside, then past the end
+    assert windows.ends.tolist()[3] == [0, 1, 0, 0]  # terminated at its last step, masked after
+    assert windows.rewards[1].tolist() == [2, 3, 4, 5]
+
+
+def test_too_short_data_and_too_long_overshooting_are_clear_errors():
+    buffer = EpisodeBuffer(linear_system_episodes(2, 10, seed=0))
+    with pytest.raises(ValueError, match="too short for the unfolding.*longest of the 2 episode\\(s\\) has 10"):
+        fit(WorldModel(2, 1, (4,)), buffer, FitSettings(unfold=12, overshoot=0))
+    with pytest.raises(ValueError, match="overshooting horizon is longer than the data: 4 unfolded \\+ 8"):
+        fit(WorldModel(2, 1, (4,)), buffer, FitSettings(unfold=4, overshoot=8))
+
+
+def test_a_diverging_fit_stops_and_keeps_the_last_good_model(monkeypatch):
+    loss = fit_module.unfolding_loss
+    calls = {"n": 0}
+
+    def turns_nan(*args, **kwargs):
+        calls["n"] += 1
+        value = loss(*args, **kwargs)
+        return value * float("nan") if calls["n"] > 40 else value
+
+    monkeypatch.setattr(fit_module, "unfolding_loss", turns_nan)
+    torch.manual_seed(0)
+    model = WorldModel(2, 1, (8,))
+    initial = [p.detach().clone() for p in model.parameters()]
+    with pytest.warns(RuntimeWarning, match="diverged"):
+        report = fit(model, EpisodeBuffer(linear_system_episodes(4, 20, seed=0)),
+                     FitSettings(unfold=2, overshoot=2, max_updates=100, validate_every=10))
+    assert report.stop == "diverged" and report.updates < 100 and np.isfinite(report.valid_loss)
+    assert all(torch.isfinite(p).all() for p in model.parameters())
+    assert any(not torch.equal(p, q) for p, q in zip(model.parameters(), initial))  # trained until it broke
+
+
+def test_the_recorder_keeps_each_sub_environments_first_episode_exactly():
+    env = EpisodeRecorder(make_batch_env("cartpole", 3))
+    policy = linear(4, 1, bias=False)
+    params = torch.tensor([[0.0, 0.0, 0.0, 0.0], [0.5, 1.0, 8.0, 1.0], [-3.0, 0.0, 0.0, 0.0]])
+    result = evaluate(policy, params, env, 1, seed=3)
+    episodes = env.episodes()
+    assert [len(e) for e in episodes] == [len(e.rewards) for e in episodes]
+    assert sum(len(e) for e in episodes) == result.steps
+    np.testing.assert_allclose([e.rewards.sum() for e in episodes], result.episode_returns[:, 0].numpy(),
+                               rtol=1e-6)
+    assert [e.terminated for e in episodes] == result.terminated[:, 0].tolist()
+    assert all(len(e.observations) == len(e) + 1 for e in episodes)
+
+
+def test_the_buffer_round_trips_through_its_state_dict():
+    buffer = EpisodeBuffer(linear_system_episodes(3, 5, seed=0))
+    copy = EpisodeBuffer.from_state_dict(buffer.state_dict())
+    assert len(copy) == 3 and copy.num_steps == 15
+    for a, b in zip(buffer.episodes, copy.episodes):
+        np.testing.assert_array_equal(a.observations, b.observations)
+        np.testing.assert_array_equal(a.actions, b.actions)
+
+
+# ------------------------------------------------------------------------------------------------ ensemble, imagination
+def cartpole_starts():
+    return np.array([[0.1, 0.0, 0.05, 0.0], [-0.3, 0.0, -0.1, 0.0], [0.4, 0.0, 0.15, 0.0]], np.float32)
+
+
+def test_ensemble_members_disagree_only_when_their_weights_differ():
+    torch.manual_seed(0)
+    ensemble = Ensemble(lambda: WorldModel(4, 1, (8,)), size=3)
+    observation, action = torch.randn(5, 4), torch.randn(5, 1)
+    prediction, _ = ensemble.step(observation, action, ensemble.initial_state(5))
+    assert prediction.observations.shape == (3, 5, 4)
+    assert (ensemble.disagreement(prediction) > 0).all()
+    for member in ensemble.members[1:]:
+        member.load_state_dict(ensemble.members[0].state_dict())
+    prediction, _ = ensemble.step(observation, action, ensemble.initial_state(5))
+    torch.testing.assert_close(ensemble.disagreement(prediction), torch.zeros(5))
+
+
+def test_the_imagined_env_is_a_vector_env_that_evaluate_runs_unchanged():
+    torch.manual_seed(0)
+    ensemble = Ensemble(lambda: WorldModel(4, 1, (8,)), size=2)
+    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    env = ImaginedEnv(ensemble, cartpole_starts(), 4 * 3, action_space, horizon=20,
+                      known_reward=KNOWN_REWARDS["drrl/CartPole-v0"])
+    observations, _ = env.reset(seed=[11, 12, 13] * 4)
+    assert observations.shape == (12, 4)
+    assert {tuple(o) for o in observations} <= {tuple(s) for s in cartpole_starts()}  # real starts only
+    np.testing.assert_array_equal(observations[:3], observations[3:6])  # same seed, same start
+    policy = linear(4, 1, bias=False)
+    params = torch.randn(4, 4, generator=torch.Generator().manual_seed(0))
+    first = evaluate(policy, params, env, 3, seed=5)
+    again = evaluate(policy, params, env, 3, seed=5)
+    torch.testing.assert_close(first.episode_returns, again.episode_returns)
+    assert first.steps <= 12 * 20 and first.episodes == 12
+    assert (first.episode_returns <= 0).all()  # the thesis's reward 5.8 is never positive
+
+
+def test_the_imagined_env_can_use_the_models_own_reward_and_penalise_disagreement():
+    torch.manual_seed(0)
+    ensemble = Ensemble(lambda: WorldModel(4, 1, (8,)), size=3)
+    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    plain = ImaginedEnv(ensemble, cartpole_starts(), 2, action_space, horizon=5)
+    penalised = ImaginedEnv(ensemble, cartpole_starts(), 2, action_space, horizon=5, disagreement_penalty=1.0)
+    rewards = []
+    for env in (plain, penalised):
+        env.reset(seed=[1, 2])
+        rewards.append(env.step(np.zeros((2, 1), np.float32))[1])
+    assert (rewards[1] < rewards[0]).all()
+
+
+# ------------------------------------------------------------------------------------------------ quality report
+def test_the_quality_report_plots_k_step_errors_of_each_variant(tmp_path):
+    training, held_out = EpisodeBuffer(linear_system_episodes(6, 30, seed=1)), EpisodeBuffer(
+        linear_system_episodes(2, 30, seed=2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        curves = model_quality_report(training, held_out, tmp_path / "quality.png", max_k=8, hidden=(16,),
+                                      settings=FitSettings(unfold=2, overshoot=4, learn_reward=False, lr=1e-2,
+                                                           max_updates=100))
+    assert len(curves) == 3 and all(errors.shape == (8,) and np.isfinite(errors).all() for errors in curves.values())
+    assert (tmp_path / "quality.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("env_id, task", [("drrl/CartPole-v0", BalanceTask()),
+                                          ("drrl/CartPolePO-v0", PartiallyObservedTask()),
+                                          ("drrl/CartPoleSwingUp-v0", SwingUpTask())])
+def test_known_rewards_on_observations_equal_the_tasks_rewards_on_states(env_id, task):
+    states = np.random.default_rng(0).normal(size=(500, 4)) * [1.5, 1.0, 0.5, 1.0]
+    steps = np.arange(500) % task.horizon + 1
+    expected_reward, expected_end = task.reward(states, steps)
+    reward, end = KNOWN_REWARDS[env_id](task.observe(states), steps)
+    np.testing.assert_allclose(reward, expected_reward, atol=1e-6)
+    np.testing.assert_array_equal(end, expected_end)
+    assert end.any() and not end.all()
