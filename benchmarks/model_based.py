@@ -24,16 +24,8 @@ from drrl.envs.solved import VERDICTS
 from drrl.model_based import model_based_config, train_model_based
 from drrl.models import EpisodeBuffer, ModelBasedSettings
 from drrl.models.quality import model_quality_report
+from sample_efficiency import first_reached, median_or_miss
 
-
-def first_reached(rows: list[dict], criterion: str) -> int | None:
-    """Real training episodes spent when the centre first met ``criterion``; None if never."""
-    return next((row["real_episodes"] for row in rows if row.get(criterion)), None)
-
-
-def median_or_miss(values: list) -> str:
-    median = statistics.median(float("inf") if v is None else v for v in values)
-    return "not reached" if median == float("inf") else f"{median:g}"
 
 
 def main() -> None:
