@@ -6,7 +6,7 @@ from gymnasium import spaces
 
 from drrl.envs.batch import ActionMap, make_batch_env
 from drrl.policies import linear
-from drrl.rollout import episode_seeds, evaluate
+from drrl.rollout import NonFiniteOutput, episode_seeds, evaluate
 
 
 def one_at_a_time(policy, params, env_id, seeds, episodes):
@@ -88,3 +88,25 @@ def test_unsupported_spaces_are_refused_with_the_reason():
 def test_unknown_env_lists_the_choices():
     with pytest.raises(ValueError, match=r"unknown environment 'Nope-v9'.*cartpole \(drrl/CartPole-v0\).*Pendulum-v1"):
         make_batch_env("Nope-v9", 2)
+
+
+class HugeRewardEnv(gymnasium.Env):
+    """Pays 1e308 a step for 3 steps: every reward is finite, their sum is not."""
+
+    observation_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action):
+        self.t += 1
+        return np.zeros(1, np.float32), 1e308, self.t == 3, False, {}
+
+
+def test_a_return_that_overflows_stops_the_rollout():
+    env = gymnasium.vector.SyncVectorEnv([HugeRewardEnv, HugeRewardEnv])
+    with pytest.raises(NonFiniteOutput, match="non-finite return inf at step 3 of candidate 0's episode 0"):
+        evaluate(linear(1, 1), torch.zeros(2, 2), env, episodes=1, seed=0)

@@ -320,9 +320,6 @@ def search_in_model(setup: ModelBasedSetup, imagined: ImaginedEnv, iteration: in
             raise ModelDiverged(f"iteration {iteration}, generation {generation}: the model imagined {error}; "
                                 f"stopped before updating the search") from None
         returns = evaluation.returns
-        if not torch.isfinite(returns).all():
-            raise ModelDiverged(f"iteration {iteration}, generation {generation}: the model imagined non-finite "
-                                f"returns; stopped before updating the search")
         search.tell(returns.to(torch.float32))
         result.imagined_episodes += evaluation.episodes
         result.imagined_steps += evaluation.steps

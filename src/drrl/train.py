@@ -36,10 +36,6 @@ CHECKPOINT_KIND = "model-free"
 COUNTER_KEYS = ("generation", "real_episodes", "real_steps", "eval_episodes", "best_generation", "best_center_criteria")
 
 
-class NonFiniteReturn(NonFiniteOutput):
-    """A candidate's return was NaN or infinite; the run stops with its folder and last checkpoint kept."""
-
-
 @dataclass
 class Counters:
     """What the run has spent so far. Real episodes and steps are training only; measuring is counted apart."""
@@ -197,7 +193,6 @@ def run_generation(setup: Setup, counters: Counters, generation: int, start: flo
         result = setup.backend.evaluate(candidates, derive_seed(config.seed, generation, TRAINING))
     except NonFiniteOutput as error:
         raise NonFiniteOutput(f"generation {generation}: {error}; stopped before updating the search") from None
-    _check_finite(result.returns, generation)
     search.tell(result.returns.to(torch.float32))
     counters.generation = generation
     counters.real_episodes += result.episodes
@@ -240,13 +235,6 @@ def _sigterm_as_interrupt():
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
-
-
-def _check_finite(returns: torch.Tensor, generation: int) -> None:
-    bad = torch.nonzero(~torch.isfinite(returns)).flatten().tolist()
-    if bad:
-        raise NonFiniteReturn(f"generation {generation}: candidate(s) {bad} returned non-finite returns "
-                              f"{returns[bad].tolist()}; stopped before updating the search")
 
 
 def checkpoint_state(search: PGPE, counters: Counters, env_id: str, policy: Policy) -> dict:

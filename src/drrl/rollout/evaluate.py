@@ -2,7 +2,8 @@
 
 The env must hold P·E sub-environments: candidate p's episode e runs in slot p·E + e. Every slot runs one episode;
 a slot whose episode has ended is masked (its later rewards and steps are not counted) while the others go on.
-A NaN or infinite observation or reward of a running episode stops the rollout with :class:`NonFiniteOutput`.
+A NaN or infinite observation, reward or return of a running episode stops the rollout with
+:class:`NonFiniteOutput`.
 """
 
 from __future__ import annotations
@@ -87,6 +88,7 @@ def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int
         terminated_slots |= running & terminated
         running &= ~(terminated | truncated)
         t += 1
+    _check_finite("return", returns, np.ones(slots, dtype=bool), t, episodes)  # finite rewards can still overflow
     episode_returns = torch.as_tensor(returns, dtype=torch.float64).view(population, episodes)
     return Evaluation(episode_returns=episode_returns,
                       terminated=torch.as_tensor(terminated_slots).view(population, episodes),
