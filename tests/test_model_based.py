@@ -3,7 +3,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 from click.testing import CliRunner
 from pydantic import ValidationError
 
@@ -15,13 +14,7 @@ from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings
 from drrl.runs import RunFolder
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny matrices: one thread is fastest, and immune to a busy machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 # 6 real episodes (2 + 2 + 2), a small model fitted briefly, 12 generations of 10 candidates × 4 imagined episodes.
