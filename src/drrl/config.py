@@ -9,7 +9,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from drrl.models.settings import ModelBasedSettings
+from drrl.models.settings import ModelBasedSettings, one_of
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 
 
@@ -48,17 +48,17 @@ class TrainConfig(BaseModel):
     @field_validator("sampler")
     @classmethod
     def _known_sampler(cls, value: str) -> str:
-        return _one_of(value, SAMPLERS)
+        return one_of(value, SAMPLERS)
 
     @field_validator("optimizer")
     @classmethod
     def _known_optimizer(cls, value: str) -> str:
-        return _one_of(value, OPTIMIZERS)
+        return one_of(value, OPTIMIZERS)
 
     @field_validator("fitness_shaping")
     @classmethod
     def _known_shaping(cls, value: str) -> str:
-        return _one_of(value, FITNESS_SHAPINGS)
+        return one_of(value, FITNESS_SHAPINGS)
 
     @model_validator(mode="after")
     def _consistent(self) -> TrainConfig:
@@ -78,12 +78,6 @@ class TrainConfig(BaseModel):
     @property
     def generations(self) -> int:
         return self.budget // self.episodes_per_generation
-
-
-def _one_of(value: str, choices: tuple[str, ...]) -> str:
-    if value not in choices:
-        raise ValueError(f"{value!r} is not one of: {', '.join(choices)}")
-    return value
 
 
 def load_config_file(path: Path) -> dict:

@@ -56,22 +56,22 @@ class ModelBasedSettings(BaseModel):
     @field_validator("model_kind")
     @classmethod
     def _known_kind(cls, value: str) -> str:
-        return _one_of(value, MODEL_KINDS)
+        return one_of(value, MODEL_KINDS)
 
     @field_validator("future_inputs")
     @classmethod
     def _known_future_inputs(cls, value: str) -> str:
-        return _one_of(value, FUTURE_INPUTS)
+        return one_of(value, FUTURE_INPUTS)
 
     @field_validator("reward")
     @classmethod
     def _known_reward_mode(cls, value: str) -> str:
-        return _one_of(value, REWARD_MODES)
+        return one_of(value, REWARD_MODES)
 
     @field_validator("model_optimizer")
     @classmethod
     def _known_optimizer(cls, value: str) -> str:
-        return _one_of(value, MODEL_OPTIMIZERS)
+        return one_of(value, MODEL_OPTIMIZERS)
 
     @field_validator("hidden")
     @classmethod
@@ -88,7 +88,8 @@ class ModelBasedSettings(BaseModel):
                            validate_every=min(100, self.fit_updates if first else self.refit_updates))
 
 
-def _one_of(value: str, choices: tuple[str, ...]) -> str:
+def one_of(value: str, choices: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``choices``; else a ValueError listing them (for pydantic validators)."""
     if value not in choices:
         raise ValueError(f"{value!r} is not one of: {', '.join(choices)}")
     return value
