@@ -7,12 +7,17 @@ import torch
 from drrl.envs.batch import make_batch_env
 from drrl.rollout.backend import Workload
 from drrl.rollout.evaluate import Evaluation, evaluate
+from drrl.rollout.memory import retain_freed_memory
 
 
 class LocalBackend:
-    """One batched env of P·E sub-environments, made once and reused every generation."""
+    """One batched env of P·E sub-environments, made once and reused every generation.
+
+    Raises this process's malloc thresholds (:func:`~drrl.rollout.memory.retain_freed_memory`).
+    """
 
     def __init__(self, workload: Workload):
+        retain_freed_memory()
         self.workload = workload
         self.env = make_batch_env(workload.env_id, workload.popsize * workload.episodes)
 

@@ -20,6 +20,7 @@ import torch
 from drrl.envs.batch import make_batch_env
 from drrl.rollout.backend import Workload, chunk_bounds
 from drrl.rollout.evaluate import Evaluation, evaluate
+from drrl.rollout.memory import retain_freed_memory
 
 INSTALL_HINT = '--backend ray needs Ray, which is not installed: pip install "drrl[ray]"'
 MAX_ATTEMPTS = 4  # runs of one chunk in one generation before the run gives up
@@ -37,6 +38,7 @@ class RolloutWorker:
     """One Ray actor: evaluates chunks of candidates on batched envs it keeps, one per chunk size."""
 
     def __init__(self, workload: Workload, candidates: int):
+        retain_freed_memory()
         self.workload = workload
         self.envs = {}
         self._env(candidates)  # made now, so a bad env fails at start-up and the first generation is not slower
