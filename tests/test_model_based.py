@@ -9,9 +9,11 @@ from pydantic import ValidationError
 from drrl.cli import main
 from drrl.compare import MODEL_BASED, compare, method_config
 from drrl.config import TrainConfig
+from drrl.envs.solved import verdict_names
 from drrl.model_based import fitting_settings, model_based_config, prepare_model_based, train_model_based
 from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings
 from drrl.runs import RunFolder
+from drrl.train import better_center
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -47,6 +49,21 @@ def test_model_based_counts_real_imagined_and_evaluation_episodes_apart(small_ru
     assert [row["imagined_episodes"] for row in rows] == [per_iteration, 2 * per_iteration, 3 * per_iteration]
     assert rows[-1]["imagined_steps"] > rows[-1]["imagined_episodes"]  # imagined episodes last > 1 step
     assert [row["fit_updates"] for row in rows] == [100, 80, 80]  # the first fit, then warm-started refits
+
+
+def test_a_centre_that_meets_more_criteria_beats_one_with_a_higher_return():
+    assert better_center({"balanced": True, "near_optimal": False}, -150.0, best_criteria=0, best_return=-40.0)
+    assert not better_center({"balanced": False}, -5.0, best_criteria=1, best_return=-150.0)
+    assert better_center({"balanced": True}, -30.0, best_criteria=1, best_return=-40.0)
+    assert not better_center({}, -40.0, best_criteria=0, best_return=-40.0)  # a tie keeps the earlier centre
+
+
+def test_model_based_keeps_the_centre_with_the_most_criteria_then_the_best_return(small_run):
+    names = verdict_names("drrl/CartPole-v0")
+    best = max(small_run.rows, key=lambda row: (sum(row[name] for name in names), row["center_return"]))
+    assert small_run.best_iteration == best["iteration"]
+    assert small_run.best_center_criteria == sum(best[name] for name in names)
+    assert small_run.best_center_return == best["center_return"]
 
 
 def test_the_in_model_search_stops_early_once_it_stops_improving():

@@ -45,7 +45,7 @@ from drrl.policies import Policy
 from drrl.rollout import Evaluation, NonFiniteOutput, evaluate
 from drrl.runs import RunFolder
 from drrl.search.pgpe import PGPE
-from drrl.train import MEASURING, TRAINING, build_policy, build_search, derive_seed, measure
+from drrl.train import MEASURING, TRAINING, better_center, build_policy, build_search, derive_seed, measure
 
 IMAGINING, FITTING = 2, 3  # random streams of imagined episodes and model fitting, apart from training and measuring
 
@@ -86,6 +86,7 @@ class ModelBasedResult:
     eval_episodes: int = 0
     best_center: torch.Tensor | None = None
     best_center_return: float = float("-inf")
+    best_center_criteria: int = 0
     best_iteration: int = 0
 
     def state_dict(self, env_id: str, policy: Policy) -> dict:
@@ -94,6 +95,7 @@ class ModelBasedResult:
         best = self.search.center if self.best_center is None else self.best_center
         return {"search": self.search.state_dict(), "center": self.search.center.detach().cpu(), "env_id": env_id,
                 "best_center": best.detach().cpu(), "best_center_return": self.best_center_return,
+                "best_center_criteria": self.best_center_criteria,
                 "best_generation": self.best_iteration, "num_params": policy.num_params,
                 "generation": self.iteration, "real_episodes": self.real_episodes, "real_steps": self.real_steps,
                 "eval_episodes": self.eval_episodes, "imagined_episodes": self.imagined_episodes,
@@ -208,17 +210,20 @@ def run_iteration(setup: ModelBasedSetup, result: ModelBasedResult, iteration: i
     measured = measure(policy, search.center, setup.eval_env, config, derive_seed(config.seed, iteration, MEASURING))
     result.eval_episodes += measured.episodes
     center_return = float(measured.returns[0])
-    if center_return > result.best_center_return:
+    verdict = VERDICTS.get(setup.env_id)
+    met = {} if verdict is None else verdict(measured.episode_returns, measured.terminated)
+    if better_center(met, center_return, result.best_center_criteria, result.best_center_return):
         result.best_center, result.best_center_return = search.center, center_return
-        result.best_iteration = iteration
-    return iteration_row(setup, result, real, reports, fit_now, in_model, measured, generations,
+        result.best_center_criteria, result.best_iteration = sum(met.values()), iteration
+    return iteration_row(setup, result, real, reports, fit_now, in_model, measured, met, generations,
                          {"fit_time": search_start - fit_start, "search_time": search_end - search_start})
 
 
 def iteration_row(setup: ModelBasedSetup, result: ModelBasedResult, real: Evaluation, reports: list[FitReport],
-                  fit_now: FitSettings, in_model: Evaluation, measured: Evaluation, generations: int,
-                  times: dict[str, float]) -> dict:
-    """One metrics row; ``real_*`` and ``eval_episodes`` count real episodes, ``imagined_*`` the model's."""
+                  fit_now: FitSettings, in_model: Evaluation, measured: Evaluation, met: dict[str, bool],
+                  generations: int, times: dict[str, float]) -> dict:
+    """One metrics row; ``real_*`` and ``eval_episodes`` count real episodes, ``imagined_*`` the model's;
+    ``met``: the task's verdict on the measured centre."""
     row = {"iteration": result.iteration, "real_episodes": result.real_episodes, "real_steps": result.real_steps,
            "imagined_episodes": result.imagined_episodes, "imagined_steps": result.imagined_steps,
            "generations": generations, "mean_return": float(real.returns.mean()),
@@ -226,9 +231,7 @@ def iteration_row(setup: ModelBasedSetup, result: ModelBasedResult, real: Evalua
            "sigma_norm": float(setup.search.sigma.norm()), "overshoot": fit_now.overshoot,
            "model_loss": float(np.mean([report.valid_loss for report in reports])),
            "fit_updates": int(sum(report.updates for report in reports))}
-    verdict = VERDICTS.get(setup.env_id)
-    if verdict is not None:
-        row.update({name: int(ok) for name, ok in verdict(measured.episode_returns, measured.terminated).items()})
+    row.update({name: int(ok) for name, ok in met.items()})
     row["eval_episodes"] = result.eval_episodes
     row.update({name: round(seconds, 3) for name, seconds in times.items()})
     return row

@@ -75,6 +75,12 @@ def measure(policy: Policy, center: torch.Tensor, env, config: TrainConfig, seed
     return evaluate(policy, center[None], env, env.num_envs, seed=seed, max_steps=config.max_steps)
 
 
+def better_center(met: dict[str, bool], center_return: float, best_criteria: int, best_return: float) -> bool:
+    """Whether a measured centre beats the best one so far: more of the task's verdict criteria met (``met``),
+    then a higher return. Both training loops keep their best centre by this rule; ``drrl eval`` runs it."""
+    return (sum(met.values()), center_return) > (best_criteria, best_return)
+
+
 @dataclass
 class Setup:
     """The pieces of a run, built and checked before any training starts."""
@@ -209,7 +215,7 @@ def run_generation(setup: Setup, counters: Counters, generation: int, start: flo
         verdict = VERDICTS.get(setup.env_id)
         met = {} if verdict is None else verdict(measured.episode_returns, measured.terminated)
         row.update({name: int(ok) for name, ok in met.items()})
-        if (sum(met.values()), row["center_return"]) > (counters.best_center_criteria, counters.best_center_return):
+        if better_center(met, row["center_return"], counters.best_center_criteria, counters.best_center_return):
             counters.best_center, counters.best_center_return = search.center, row["center_return"]
             counters.best_center_criteria, counters.best_generation = sum(met.values()), generation
     else:
