@@ -5,7 +5,7 @@ Every iteration measures the centre policy on 50 fresh real episodes (counted ap
 per seed, then medians over seeds; a seed that never gets there counts as worse than any that does.
 
     python benchmarks/model_based.py --seeds 10
-    python benchmarks/model_based.py --env cartpole-swingup --policy mlp:16 --budget 30 --seeds 10
+    python benchmarks/model_based.py --config configs/cartpole-swingup-model-based.toml --seeds 10
     python benchmarks/model_based.py --seeds 1 --quality model_quality.png
 """
 
@@ -15,10 +15,12 @@ import argparse
 import json
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from drrl.config import load_config_file
 from drrl.envs.batch import resolve_env_id
 from drrl.envs.solved import VERDICTS
 from drrl.model_based import model_based_config, train_model_based
@@ -30,11 +32,13 @@ from sample_efficiency import first_reached, median_or_miss
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="cartpole")
-    parser.add_argument("--policy", default="linear:nobias")
+    parser.add_argument("--config", type=Path, help="TOML or JSON file of settings, as `drrl train --config` reads "
+                                                    "(the options below override it)")
+    parser.add_argument("--env", help="[default: cartpole]")
+    parser.add_argument("--policy", help="[default: linear:nobias]")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--budget", type=int, default=20)
+    parser.add_argument("--budget", type=int, help="real training episodes [default: 20]")
     parser.add_argument("--model-based", default="{}", help="JSON of ModelBasedSettings fields to change")
     parser.add_argument("--search", default="{}", help="JSON of TrainConfig fields to change")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (tiny matrices: 1 is fastest)")
@@ -42,14 +46,18 @@ def main() -> None:
     parser.add_argument("--quality", help="write the k-step model-quality plot of the first seed's data here")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    criteria = list(VERDICTS[resolve_env_id(args.env)](torch.zeros(1, 1), torch.zeros(1, 1, dtype=torch.bool)))
+    settings = {"env": "cartpole", "policy": "linear:nobias", "budget": 20,
+                **(load_config_file(args.config) if args.config else {}),
+                **{name: value for name in ("env", "policy", "budget") if (value := getattr(args, name)) is not None},
+                **json.loads(args.search)}
+    model_settings = {**(settings.pop("model_based", None) or {}), **json.loads(args.model_based)}
+    criteria = list(VERDICTS[resolve_env_id(settings["env"])](torch.zeros(1, 1), torch.zeros(1, 1, dtype=torch.bool)))
     reached = {criterion: [] for criterion in criteria}
     walls, cpus, finals = [], [], []
     print(f"| seed | {' | '.join(f'episodes to {c}' for c in criteria)} | final centre return | wall s | cpu s |")
     print("| --- " * (len(criteria) + 4) + "|")
     for seed in range(args.first_seed, args.first_seed + args.seeds):
-        config = model_based_config(json.loads(args.model_based), env=args.env, policy=args.policy,
-                                    budget=args.budget, seed=seed, **json.loads(args.search))
+        config = model_based_config(model_settings, **{**settings, "seed": seed})
         wall, cpu = time.perf_counter(), time.process_time()
         result = train_model_based(config)
         walls.append(time.perf_counter() - wall)
@@ -57,7 +65,7 @@ def main() -> None:
         finals.append(result.rows[-1]["center_return"])
         if args.rows:
             with open(args.rows, "a") as handle:
-                handle.write(json.dumps({"seed": seed, "env": args.env, "rows": result.rows}) + "\n")
+                handle.write(json.dumps({"seed": seed, "env": config.env, "rows": result.rows}) + "\n")
         for criterion in criteria:
             reached[criterion].append(first_reached(result.rows, criterion))
         print(f"| {seed} | {' | '.join(str(reached[c][-1]) for c in criteria)} | {finals[-1]:.1f} "

@@ -1,6 +1,9 @@
+from pathlib import Path
+
 import pytest
 from pydantic import ValidationError
 
+from drrl.cli_model_based import with_model_based
 from drrl.config import TrainConfig, describe_errors, load_config_file
 
 
@@ -34,3 +37,10 @@ def test_config_files_in_toml_and_json(tmp_path):
 def test_generations_fill_the_budget_with_whole_generations():
     config = TrainConfig(popsize=10, episodes_per_candidate=2, budget=95)
     assert config.episodes_per_generation == 20 and config.generations == 4
+
+
+def test_the_config_files_the_docs_point_to_are_valid():
+    paths = sorted((Path(__file__).parents[1] / "configs").glob("*.toml"))
+    assert paths, "configs/ holds no config files"
+    for path in paths:
+        TrainConfig.model_validate(with_model_based(load_config_file(path), False, {}))  # raises if invalid
