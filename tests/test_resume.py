@@ -77,10 +77,11 @@ def test_sigkill_at_a_random_moment_then_resume_gives_the_uninterrupted_run(tmp_
     assert same_state(out, uninterrupted)
 
 
-def signal_after_two_generations(out: Path, how: signal.Signals) -> None:
-    """Send ``how`` to this process once the run in ``out`` has written two rows of metrics."""
+def signal_after_three_rows(out: Path, how: signal.Signals) -> None:
+    """Send ``how`` to this process once the run in ``out`` has written three rows of metrics, so that the state of
+    generation 2 at least is whole (a generation's row is written just before its state is taken)."""
     metrics, deadline = out / "metrics.csv", time.monotonic() + 120
-    while not (metrics.exists() and len(metrics.read_text().splitlines()) > 2) and time.monotonic() < deadline:
+    while not (metrics.exists() and len(metrics.read_text().splitlines()) > 3) and time.monotonic() < deadline:
         time.sleep(0.005)
     os.kill(os.getpid(), how)
 
@@ -88,7 +89,7 @@ def signal_after_two_generations(out: Path, how: signal.Signals) -> None:
 @pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGINT])
 def test_sigterm_and_ctrl_c_save_the_last_whole_generation_and_say_how_to_resume(tmp_path, how):
     out = tmp_path / "run"
-    threading.Thread(target=signal_after_two_generations, args=(out, how), daemon=True).start()
+    threading.Thread(target=signal_after_three_rows, args=(out, how), daemon=True).start()
     long_run = ["--budget", "8000", "--checkpoint-every", "1000", "--out", str(out)]  # stopped long before its end
     result = CliRunner().invoke(main, ["train", *RUN, *long_run])
     written, saved = len(rows(out)), RunFolder(out).load_checkpoint()["generation"]
