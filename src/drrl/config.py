@@ -7,10 +7,12 @@ import json
 import tomllib
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from drrl.models.settings import ModelBasedSettings, one_of
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
+
+CHOICES = {"sampler": SAMPLERS, "optimizer": OPTIMIZERS, "fitness_shaping": FITNESS_SHAPINGS}  # string settings
 
 
 class TrainConfig(BaseModel):
@@ -45,20 +47,10 @@ class TrainConfig(BaseModel):
     device: str = "cpu"
     model_based: ModelBasedSettings | None = Field(None, description="set: model-based PGPE (drrl.model_based)")
 
-    @field_validator("sampler")
+    @field_validator(*CHOICES)
     @classmethod
-    def _known_sampler(cls, value: str) -> str:
-        return one_of(value, SAMPLERS)
-
-    @field_validator("optimizer")
-    @classmethod
-    def _known_optimizer(cls, value: str) -> str:
-        return one_of(value, OPTIMIZERS)
-
-    @field_validator("fitness_shaping")
-    @classmethod
-    def _known_shaping(cls, value: str) -> str:
-        return one_of(value, FITNESS_SHAPINGS)
+    def _known_choice(cls, value: str, info: ValidationInfo) -> str:
+        return one_of(value, CHOICES[info.field_name])
 
     @model_validator(mode="after")
     def _consistent(self) -> TrainConfig:

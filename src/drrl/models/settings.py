@@ -9,12 +9,14 @@ iteration. :data:`MODEL_BASED_DEFAULTS` are the ``TrainConfig`` values a model-b
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
 from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS
 
 REWARD_MODES = ("auto", "known", "learned")
+CHOICES = {"model_kind": MODEL_KINDS, "future_inputs": FUTURE_INPUTS, "reward": REWARD_MODES,
+           "model_optimizer": MODEL_OPTIMIZERS}  # string settings and what each allows
 
 # TrainConfig values for a model-based run: 20 real episodes; PGPE in the model with 20 candidates × 10 imagined
 # episodes (many imagined episodes per candidate are free, and average out the start states).
@@ -53,25 +55,10 @@ class ModelBasedSettings(BaseModel):
     refit_updates: int = Field(400, ge=1, description="most gradient steps of every later fit, which starts from "
                                                       "the previous model's weights")
 
-    @field_validator("model_kind")
+    @field_validator(*CHOICES)
     @classmethod
-    def _known_kind(cls, value: str) -> str:
-        return one_of(value, MODEL_KINDS)
-
-    @field_validator("future_inputs")
-    @classmethod
-    def _known_future_inputs(cls, value: str) -> str:
-        return one_of(value, FUTURE_INPUTS)
-
-    @field_validator("reward")
-    @classmethod
-    def _known_reward_mode(cls, value: str) -> str:
-        return one_of(value, REWARD_MODES)
-
-    @field_validator("model_optimizer")
-    @classmethod
-    def _known_optimizer(cls, value: str) -> str:
-        return one_of(value, MODEL_OPTIMIZERS)
+    def _known_choice(cls, value: str, info: ValidationInfo) -> str:
+        return one_of(value, CHOICES[info.field_name])
 
     @field_validator("hidden")
     @classmethod
