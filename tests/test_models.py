@@ -7,10 +7,10 @@ import torch
 
 from drrl.envs.batch import make_batch_env
 from drrl.envs.cartpole import BalanceTask, PartiallyObservedTask, SwingUpTask
-from drrl.models import (KNOWN_REWARDS, Ensemble, Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv,
+from drrl.models import (KNOWN_REWARDS, Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv,
                          WorldModel)
 from drrl.models import fit as fit_module
-from drrl.models.fit import fit
+from drrl.models.fit import clip_member_gradients, fit
 from drrl.models.quality import k_step_errors, model_quality_report
 from drrl.policies import linear
 from drrl.rollout import evaluate
@@ -49,8 +49,8 @@ def test_unfolding_and_overshooting_give_one_prediction_per_step(kind, hidden):
     model = WorldModel(4, 1, hidden, kind)
     observations, actions = random_inputs(batch=3, length=7)
     prediction = model.unfold(observations, actions, observed_steps=3)  # 3 observed + 4 overshooting steps
-    assert prediction.observations.shape == (3, 7, 4)
-    assert prediction.rewards.shape == prediction.ends.shape == (3, 7)
+    assert prediction.observations.shape == (1, 3, 7, 4)  # members, windows, steps, observation
+    assert prediction.rewards.shape == prediction.ends.shape == (1, 3, 7)
     assert ((prediction.ends > 0) & (prediction.ends < 1)).all()
     assert len(model.initial_state(5)) == len(hidden) * (1 if kind == "rnn" else 2)
 
@@ -62,7 +62,7 @@ def test_the_gradient_of_the_last_overshooting_step_reaches_the_first_unfolded_s
     observations.requires_grad_(True)
     model.unfold(observations, actions, observed_steps=4).observations[:, -1].sum().backward()
     assert observations.grad[:, 0].abs().sum() > 0  # back-propagation through all 10 shared-weight copies
-    assert model.layers[0].weight_hh.grad.abs().sum() > 0
+    assert model.recurrent_weights[0].grad.abs().sum() > 0
 
 
 @pytest.mark.parametrize("future_inputs", ["predictions", "zeros"])
@@ -79,13 +79,13 @@ def test_the_overshooting_part_reads_the_models_predictions_not_the_observations
     for t in range(8):
         fed = observations[:, t] if t < 3 else previous.observations
         previous, state = model.step(fed, actions[:, t], state, t < 3)
-        torch.testing.assert_close(previous.observations, prediction.observations[:, t])
-        torch.testing.assert_close(previous.rewards, prediction.rewards[:, t])
+        torch.testing.assert_close(previous.observations, prediction.observations[:, :, t])
+        torch.testing.assert_close(previous.rewards, prediction.rewards[:, :, t])
     # the observed part is read
     changed = observations.clone()
     changed[:, 2] += 1.0
-    assert not torch.allclose(model.unfold(changed, actions, observed_steps=3).observations[:, 5],
-                              prediction.observations[:, 5])
+    assert not torch.allclose(model.unfold(changed, actions, observed_steps=3).observations[:, :, 5],
+                              prediction.observations[:, :, 5])
 
 
 def test_zero_future_inputs_ignore_the_fed_back_observation():
@@ -109,8 +109,8 @@ def test_the_model_learns_a_known_linear_system(kind):
     model = WorldModel(2, 1, (32,), kind)
     model.set_scales(training.scales())
     untrained = k_step_errors(model, held_out, 10)
-    report = fit(model, training, FitSettings(unfold=2, overshoot=6, learn_reward=False, lr=2e-2, batch_size=256,
-                                              max_updates=100, validate_every=25, patience=20))
+    [report] = fit(model, training, FitSettings(unfold=2, overshoot=6, learn_reward=False, lr=2e-2, batch_size=256,
+                                                max_updates=100, validate_every=25, patience=20))
     errors = k_step_errors(model, held_out, 10)  # in units of the per-step change
     assert report.stop == "max_updates" and report.valid_loss < 1.0
     assert errors[0] < 0.3 and errors[-1] < 0.5 and errors[-1] < untrained[-1] / 10
@@ -138,7 +138,7 @@ def test_too_short_data_and_too_long_overshooting_are_clear_errors():
 
 
 def test_a_diverging_fit_stops_and_keeps_the_last_good_model(monkeypatch):
-    loss = fit_module.unfolding_loss
+    loss = fit_module.window_losses
     calls = {"n": 0}
 
     def turns_nan(*args, **kwargs):
@@ -146,13 +146,13 @@ def test_a_diverging_fit_stops_and_keeps_the_last_good_model(monkeypatch):
         value = loss(*args, **kwargs)
         return value * float("nan") if calls["n"] > 40 else value
 
-    monkeypatch.setattr(fit_module, "unfolding_loss", turns_nan)
+    monkeypatch.setattr(fit_module, "window_losses", turns_nan)
     torch.manual_seed(0)
     model = WorldModel(2, 1, (8,))
     initial = [p.detach().clone() for p in model.parameters()]
     with pytest.warns(RuntimeWarning, match="diverged"):
-        report = fit(model, EpisodeBuffer(linear_system_episodes(4, 20, seed=0)),
-                     FitSettings(unfold=2, overshoot=2, max_updates=100, validate_every=10))
+        [report] = fit(model, EpisodeBuffer(linear_system_episodes(4, 20, seed=0)),
+                       FitSettings(unfold=2, overshoot=2, max_updates=100, validate_every=10))
     assert report.stop == "diverged" and report.updates < 100 and np.isfinite(report.valid_loss)
     assert all(torch.isfinite(p).all() for p in model.parameters())
     assert any(not torch.equal(p, q) for p, q in zip(model.parameters(), initial))  # trained until it broke
@@ -188,20 +188,53 @@ def cartpole_starts():
 
 def test_ensemble_members_disagree_only_when_their_weights_differ():
     torch.manual_seed(0)
-    ensemble = Ensemble(lambda: WorldModel(4, 1, (8,)), size=3)
+    ensemble = WorldModel(4, 1, (8,), members=3)
     observation, action = torch.randn(5, 4), torch.randn(5, 1)
     prediction, _ = ensemble.step(observation, action, ensemble.initial_state(5))
     assert prediction.observations.shape == (3, 5, 4)
     assert (ensemble.disagreement(prediction) > 0).all()
-    for member in ensemble.members[1:]:
-        member.load_state_dict(ensemble.members[0].state_dict())
+    with torch.no_grad():
+        for tensor in [*ensemble.parameters(), *ensemble.buffers()]:
+            tensor[1:] = tensor[0]
     prediction, _ = ensemble.step(observation, action, ensemble.initial_state(5))
     torch.testing.assert_close(ensemble.disagreement(prediction), torch.zeros(5))
 
 
+@pytest.mark.parametrize("kind, hidden", [("rnn", (8,)), ("lstm", (8, 6))])
+def test_each_member_of_the_batched_ensemble_computes_what_it_would_alone(kind, hidden):
+    torch.manual_seed(0)
+    ensemble = WorldModel(4, 1, hidden, kind, members=3)
+    ensemble.set_scales({"observation_mean": torch.randn(3, 4), "change_scale": torch.rand(3, 4) + 0.5})
+    observations, actions = random_inputs(batch=5, length=6)
+    together = ensemble.unfold(observations, actions, observed_steps=2)
+    for k in range(3):
+        alone = WorldModel(4, 1, hidden, kind)
+        alone.load_state_dict({name: tensor[k:k + 1] for name, tensor in ensemble.state_dict().items()})
+        torch.testing.assert_close(alone.unfold(observations, actions, observed_steps=2).observations[0],
+                                   together.observations[k])
+
+
+def test_gradients_are_clipped_for_each_member_apart():
+    small, large = torch.full((3,), 0.1), torch.full((3,), 10.0)  # norms 0.17 and 17.3
+    weight = torch.zeros(2, 3, requires_grad=True)
+    weight.grad = torch.stack([small, large])
+    clip_member_gradients([weight], max_norm=1.0)
+    torch.testing.assert_close(weight.grad[0], small)
+    torch.testing.assert_close(weight.grad[1].norm(), torch.tensor(1.0), rtol=1e-5, atol=1e-5)
+
+
+def test_ensemble_members_are_fitted_on_different_held_out_episodes():
+    model = WorldModel(2, 1, (8,), members=3)
+    reports = fit(model, EpisodeBuffer(linear_system_episodes(10, 20, seed=0)),
+                  FitSettings(unfold=2, overshoot=2, max_updates=20, validate_every=10))
+    assert [report.held_out_episodes for report in reports] == [2, 2, 2]
+    assert len({report.valid_loss for report in reports}) == 3
+    assert len({tuple(scale.tolist()) for scale in model.change_scale}) == 3  # each member's own training split
+
+
 def test_the_imagined_env_is_a_vector_env_that_evaluate_runs_unchanged():
     torch.manual_seed(0)
-    ensemble = Ensemble(lambda: WorldModel(4, 1, (8,)), size=2)
+    ensemble = WorldModel(4, 1, (8,), members=2)
     action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
     env = ImaginedEnv(ensemble, cartpole_starts(), 4 * 3, action_space, horizon=20,
                       known_reward=KNOWN_REWARDS["drrl/CartPole-v0"])
@@ -220,7 +253,7 @@ def test_the_imagined_env_is_a_vector_env_that_evaluate_runs_unchanged():
 
 def test_the_imagined_env_can_use_the_models_own_reward_and_penalise_disagreement():
     torch.manual_seed(0)
-    ensemble = Ensemble(lambda: WorldModel(4, 1, (8,)), size=3)
+    ensemble = WorldModel(4, 1, (8,), members=3)
     action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
     plain = ImaginedEnv(ensemble, cartpole_starts(), 2, action_space, horizon=5)
     penalised = ImaginedEnv(ensemble, cartpole_starts(), 2, action_space, horizon=5, disagreement_penalty=1.0)

@@ -36,8 +36,7 @@ from drrl.config import TrainConfig
 from drrl.envs.batch import make_batch_env, resolve_env_id
 from drrl.envs.solved import VERDICTS
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder
-from drrl.models.ensemble import Ensemble
-from drrl.models.fit import FitReport, FitSettings
+from drrl.models.fit import FitReport, FitSettings, fit
 from drrl.models.imagined import KNOWN_REWARDS, ImaginedEnv, RewardFunction
 from drrl.models.recurrent import WorldModel
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
@@ -65,7 +64,7 @@ class ModelBasedSetup:
     eval_env: VectorEnv
     policy: Policy
     search: PGPE
-    model: Ensemble
+    model: WorldModel
     known_reward: RewardFunction | None
     horizon: int
 
@@ -74,7 +73,7 @@ class ModelBasedSetup:
 class ModelBasedResult:
     """What the run spent and measured (``rows``: one metrics row per iteration), and its final state."""
 
-    model: Ensemble
+    model: WorldModel
     search: PGPE
     buffer: EpisodeBuffer = field(default_factory=EpisodeBuffer)
     rows: list[dict] = field(default_factory=list)
@@ -193,7 +192,7 @@ def run_iteration(setup: ModelBasedSetup, result: ModelBasedResult, iteration: i
     # 2. the model
     fit_start = time.perf_counter()
     fit_now = fitting_settings(settings.fit_settings(iteration == 1, setup.known_reward is None), result.buffer)
-    reports = setup.model.fit(result.buffer, fit_now, seed=derive_seed(config.seed, iteration, FITTING))
+    reports = fit(setup.model, result.buffer, fit_now, seed=derive_seed(config.seed, iteration, FITTING))
     if any(report.stop == "diverged" for report in reports):
         raise ModelDiverged(f"iteration {iteration}: the world model's loss turned non-finite; stopped with its "
                             f"last good weights, the {len(result.buffer)} real episodes and the search kept")
@@ -244,7 +243,7 @@ def iteration_sizes(budget: int, settings: ModelBasedSettings) -> list[int]:
     return [settings.initial_episodes] + [settings.episodes_per_iteration] * later
 
 
-def build_model(settings: ModelBasedSettings, env: VectorEnv, seed: int) -> Ensemble:
+def build_model(settings: ModelBasedSettings, env: VectorEnv, seed: int) -> WorldModel:
     """The ensemble of world models ``settings`` describes, for ``env``'s observation and action sizes."""
     if not isinstance(env.single_action_space, spaces.Box):
         raise ValueError(f"model-based training needs a Box action space (the model reads actions as numbers), "
@@ -253,8 +252,8 @@ def build_model(settings: ModelBasedSettings, env: VectorEnv, seed: int) -> Ense
     action_size = env.single_action_space.shape[0]
     with torch.random.fork_rng():  # the members' initial weights, without touching the global generator
         torch.manual_seed(seed)
-        return Ensemble(lambda: WorldModel(observation_size, action_size, settings.hidden, settings.model_kind,
-                                           settings.future_inputs), settings.ensemble_size)
+        return WorldModel(observation_size, action_size, settings.hidden, settings.model_kind,
+                          settings.future_inputs, members=settings.ensemble_size)
 
 
 def episode_horizon(env_id: str, env: VectorEnv) -> int:

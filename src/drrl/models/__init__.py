@@ -5,12 +5,13 @@ Fitting is ``drrl.models.fit.fit``; the model-based loop, a training loop, lives
 """
 
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, Windows
-from drrl.models.ensemble import Ensemble
 from drrl.models.fit import MODEL_OPTIMIZERS, FitReport, FitSettings
 from drrl.models.imagined import KNOWN_REWARDS, ImaginedEnv
-from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS, Prediction, WorldModel, unfolding_loss
+from drrl.models.recurrent import (FUTURE_INPUTS, MODEL_KINDS, Prediction, WorldModel, unfolding_loss,
+                                   window_losses)
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
-__all__ = ["FUTURE_INPUTS", "KNOWN_REWARDS", "MODEL_BASED_DEFAULTS", "MODEL_KINDS", "MODEL_OPTIMIZERS", "Ensemble",
-           "Episode", "EpisodeBuffer", "EpisodeRecorder", "FitReport", "FitSettings", "ImaginedEnv",
-           "ModelBasedSettings", "Prediction", "Windows", "WorldModel", "unfolding_loss"]
+__all__ = ["FUTURE_INPUTS", "KNOWN_REWARDS", "MODEL_BASED_DEFAULTS", "MODEL_KINDS", "MODEL_OPTIMIZERS", "Episode",
+           "EpisodeBuffer", "EpisodeRecorder", "FitReport", "FitSettings", "ImaginedEnv",
+           "ModelBasedSettings", "Prediction", "Windows", "WorldModel", "unfolding_loss",
+           "window_losses"]

@@ -100,6 +100,11 @@ class EpisodeBuffer:
         pieces = [_episode_windows(episode, unfold, length) for episode in self.episodes if len(episode) >= unfold]
         return Windows(*(torch.as_tensor(np.concatenate(parts)) for parts in zip(*pieces)))
 
+    def window_episodes(self, unfold: int) -> np.ndarray:
+        """The episode (its index in the buffer) of each of :meth:`windows`' windows, in their order."""
+        counts = [max(len(episode) - unfold + 1, 0) for episode in self.episodes]
+        return np.repeat(np.arange(len(self.episodes)), counts)
+
     def scales(self) -> dict[str, torch.Tensor]:
         """Normalisation for :meth:`WorldModel.set_scales`: means and standard deviations of the data."""
         observations = np.concatenate([episode.observations for episode in self.episodes])

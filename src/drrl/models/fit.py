@@ -5,7 +5,8 @@ Minibatches of windows go through :meth:`WorldModel.unfold`; the squared error s
 Adam with λ of Algorithm 4) or torch's own, with the step size decaying along a cosine to 0 over ``max_updates``
 (beyond the thesis: the loss is dominated by a few hard windows, e.g. of a falling pole, and a constant step keeps
 the fit jumping around). A random part of the episodes is held out; training stops once their loss has not improved
-for ``patience`` validations, and the model keeps the weights of its best validation.
+for ``patience`` validations, and the model keeps the weights of its best validation. The K members of an ensemble
+are fitted side by side in one batched network, each on its own split of the episodes.
 
 Divergence: a loss that turns NaN or infinite stops the fit at once; the model gets back the weights of its last
 good validation and the report says ``stop="diverged"`` (and a warning is issued), so a caller never goes on with a
@@ -14,7 +15,6 @@ broken model unknowingly. The data are never touched.
 
 from __future__ import annotations
 
-import copy
 import math
 import warnings
 from dataclasses import dataclass
@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from drrl.models.data import EpisodeBuffer, Windows
-from drrl.models.recurrent import WorldModel, unfolding_loss
+from drrl.models.data import EpisodeBuffer
+from drrl.models.recurrent import WorldModel, window_losses
 from drrl.search.optimizers import AdamLambda, NesterovAG
 
 MODEL_OPTIMIZERS = ("adam_lambda", "nag", "adam", "sgd")
@@ -91,66 +91,111 @@ def make_model_optimizer(name: str, params, lr: float, momentum: float = 0.9) ->
 
 
 def fit(model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSettings(), seed: int = 0
-        ) -> FitReport:
-    """Train ``model`` on ``buffer`` in place; returns what happened. Raises if the data cannot be unfolded."""
+        ) -> list[FitReport]:
+    """Train ``model``'s K members on ``buffer`` in place, side by side, each with its own held-out episodes,
+    normalisation and minibatches; returns a report per member. Raises if the data cannot be unfolded.
+
+    A member whose validation loss has not improved for ``patience`` validations keeps its best weights; the fit
+    stops when every member has, or after ``max_updates``.
+    """
     buffer.check_unfolding(settings.unfold, settings.overshoot)
-    training, held_out = _split(buffer, settings, np.random.default_rng(seed))
-    model.set_scales(training.scales())
-    device = model.readout.weight.device
-    train_windows = training.windows(settings.unfold, settings.overshoot).to(device)
-    valid_windows = held_out.windows(settings.unfold, settings.overshoot).to(device) if len(held_out) else None
+    rng = np.random.default_rng(seed)
+    splits = [_split(buffer, settings, rng) for _ in range(len(model))]
+    model.set_scales({name: torch.stack([training.scales()[name] for training, _ in splits])
+                      for name in buffer.scales()})
+    windows = buffer.windows(settings.unfold, settings.overshoot).to(model.device)
+    episode_of_window = buffer.window_episodes(settings.unfold)
+    train_index, train_weight = _member_windows([training for training, _ in splits], buffer, episode_of_window)
+    valid_index, valid_weight = _member_windows([held_out if len(held_out) else training
+                                                 for training, held_out in splits], buffer, episode_of_window)
+    train_counts = train_weight.sum(1)
     generator = torch.Generator().manual_seed(seed)
-    optimizer = make_model_optimizer(settings.optimizer, model.parameters(), settings.lr, settings.momentum)
+    parameters = list(model.parameters())
+    optimizer = make_model_optimizer(settings.optimizer, parameters, settings.lr, settings.momentum)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, settings.max_updates)
 
-    def loss_of(windows: Windows) -> torch.Tensor:
-        prediction = model.unfold(windows.observations, windows.actions, settings.unfold)
-        return unfolding_loss(model, prediction, windows.next_observations, windows.rewards, windows.ends,
-                              windows.mask, settings.learn_reward)
+    def losses_of(index: torch.Tensor) -> torch.Tensor:
+        batch = windows.select(index.to(model.device))
+        prediction = model.unfold(batch.observations, batch.actions, settings.unfold)
+        return window_losses(model, prediction, batch.next_observations, batch.rewards, batch.ends, batch.mask,
+                             settings.learn_reward)
 
-    def validation_loss() -> float:
+    def validation_losses() -> torch.Tensor:
         with torch.no_grad():
-            return float(loss_of(valid_windows if valid_windows is not None else train_windows))
+            return (losses_of(valid_index) * valid_weight).sum(-1) / valid_weight.sum(-1)
 
-    best_loss, best_state = validation_loss(), copy.deepcopy(model.state_dict())
-    since_best, stop, updates = 0, "max_updates", 0
+    best_loss = validation_losses()
+    best_state = [p.detach().clone() for p in parameters]
+    since_best = torch.zeros(len(model), dtype=torch.long)
+    stop, updates = "max_updates", 0
     for updates in range(1, settings.max_updates + 1):
-        index = torch.randint(len(train_windows), (settings.batch_size,), generator=generator).to(device)
-        batch = train_windows.select(index)
+        positions = (torch.rand(len(model), settings.batch_size, generator=generator) * train_counts[:, None]).long()
+        index = train_index.gather(1, positions)
 
         def closure():
             optimizer.zero_grad()
-            loss = loss_of(batch)
-            loss.backward()
+            loss = losses_of(index).mean(-1)  # (K,): the members are independent, so their sum trains each alone
+            loss.sum().backward()
             if settings.max_grad_norm is not None:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), settings.max_grad_norm)
+                clip_member_gradients(parameters, settings.max_grad_norm)
             return loss
 
         loss = optimizer.step(closure)
         schedule.step()
-        if not torch.isfinite(loss):
+        if not torch.isfinite(loss).all():
             stop = "diverged"
             break
         if updates % settings.validate_every == 0:
-            current = validation_loss()
-            if not math.isfinite(current):
+            current = validation_losses()
+            if not torch.isfinite(current).all():
                 stop = "diverged"
                 break
-            if current < best_loss:
-                best_loss, best_state, since_best = current, copy.deepcopy(model.state_dict()), 0
-            else:
-                since_best += 1
-                if since_best >= settings.patience:
-                    stop = "patience"
-                    break
-    model.load_state_dict(best_state)
+            improved = current < best_loss
+            best_loss = torch.where(improved, current, best_loss)
+            for kept, p in zip(best_state, parameters):
+                kept[improved] = p.detach()[improved]
+            since_best = torch.where(improved, 0, since_best + 1)
+            if (since_best >= settings.patience).all():
+                stop = "patience"
+                break
+    with torch.no_grad():
+        for kept, p in zip(best_state, parameters):
+            p.copy_(kept)
     if stop == "diverged":
         warnings.warn(f"world model diverged (non-finite loss) after {updates} updates; kept the weights of its "
-                      f"last good validation (loss {best_loss:.4g})", RuntimeWarning, stacklevel=2)
+                      f"last good validation (losses {best_loss.tolist()})", RuntimeWarning, stacklevel=2)
     with torch.no_grad():
-        train_loss = float(loss_of(train_windows))
-    return FitReport(updates=updates, train_loss=train_loss, valid_loss=best_loss,
-                     held_out_episodes=len(held_out), stop=stop)
+        train_loss = (losses_of(train_index) * train_weight).sum(-1) / train_counts
+    return [FitReport(updates=updates, train_loss=float(train_loss[k]), valid_loss=float(best_loss[k]),
+                      held_out_episodes=len(held_out),
+                      stop=stop if stop != "patience" or since_best[k] >= settings.patience else "max_updates")
+            for k, (_, held_out) in enumerate(splits)]
+
+
+def clip_member_gradients(parameters: list[torch.Tensor], max_norm: float) -> None:
+    """Gradient norm clipping (as ``torch.nn.utils.clip_grad_norm_``) for each member apart: every parameter's
+    leading dimension is the member."""
+    grads = [p.grad for p in parameters if p.grad is not None]
+    norms = torch.stack([g.flatten(1).square().sum(1) for g in grads]).sum(0).sqrt()  # (K,)
+    factor = (max_norm / (norms + 1e-6)).clamp(max=1.0)
+    for g in grads:
+        g.mul_(factor.reshape(-1, *[1] * (g.dim() - 1)))
+
+
+def _member_windows(parts: list[EpisodeBuffer], buffer: EpisodeBuffer, episode_of_window: np.ndarray
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """For each member, the windows of its part of ``buffer``'s episodes: (K, M) window indices padded with the
+    first, and (K, M) weights, 1 for a window of the part and 0 for padding."""
+    position = {id(episode): i for i, episode in enumerate(buffer.episodes)}
+    chosen = [np.flatnonzero(np.isin(episode_of_window, [position[id(e)] for e in part.episodes])) for part in parts]
+    width = max(len(c) for c in chosen)
+    index = torch.zeros(len(parts), width, dtype=torch.long)
+    weight = torch.zeros(len(parts), width)
+    for k, c in enumerate(chosen):
+        index[k, :len(c)] = torch.as_tensor(c)
+        index[k, len(c):] = int(c[0])
+        weight[k, :len(c)] = 1.0
+    return index, weight
 
 
 def _split(buffer: EpisodeBuffer, settings: FitSettings, rng: np.random.Generator

@@ -23,7 +23,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from drrl.envs.cartpole import BalanceTask, SwingUpTask
-from drrl.models.ensemble import Ensemble
+from drrl.models.recurrent import WorldModel
 
 RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -48,7 +48,7 @@ KNOWN_REWARDS: dict[str, RewardFunction] = {"drrl/CartPole-v0": balance_reward, 
 
 
 class ImaginedEnv(VectorEnv):
-    """``num_envs`` imagined episodes stepped together by an :class:`Ensemble`, with next-step autoreset.
+    """``num_envs`` imagined episodes stepped together by a :class:`WorldModel`, with next-step autoreset.
 
     Args:
         model: the world model(s); a member is drawn per episode.
@@ -56,12 +56,12 @@ class ImaginedEnv(VectorEnv):
         action_space: the real env's single action space (the policy's actions pass through unchanged).
         horizon: steps after which an imagined episode is truncated (the real task's).
         known_reward: reward and end in closed form; None to use the model's own heads (end when p̂ > 0.5).
-        disagreement_penalty: λ in r ← r − λ · disagreement (:meth:`Ensemble.disagreement`), 0 for none.
+        disagreement_penalty: λ in r ← r − λ · disagreement (:meth:`WorldModel.disagreement`), 0 for none.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, model: Ensemble, start_observations: np.ndarray, num_envs: int, action_space: spaces.Space,
+    def __init__(self, model: WorldModel, start_observations: np.ndarray, num_envs: int, action_space: spaces.Space,
                  horizon: int, known_reward: RewardFunction | None = None, disagreement_penalty: float = 0.0):
         starts = np.asarray(start_observations, dtype=np.float32)
         if starts.ndim != 2 or len(starts) == 0:
@@ -148,6 +148,5 @@ class ImaginedEnv(VectorEnv):
         self._member[index] = torch.as_tensor(members, device=self.device)
         self._observed[index] = True
         self.elapsed_steps[envs] = 0
-        for member_state in self._state:
-            for tensor in member_state:
-                tensor[index] = 0.0
+        for tensor in self._state:
+            tensor[:, index] = 0.0

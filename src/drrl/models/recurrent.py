@@ -28,16 +28,24 @@ Departures from the thesis, and why
       o_{t+1} itself: consecutive observations are close, so the change is the part worth learning, and the
       prediction cannot drift far from the current observation in one step.
     * Biases b and c, which the thesis folds into W (3.2).
-    * The LSTM is torch's ``nn.LSTMCell``: input, output and forget gates. The thesis's 3.15–3.21 (Hochreiter and
-      Schmidhuber 1997) have no forget gate (3.21 only adds to the cell); the forget gate (Gers et al. 2000) lets
-      a cell be reset and is what every LSTM since uses.
+    * The LSTM has input, output and forget gates (in the order of torch's ``nn.LSTMCell``). The thesis's
+      3.15–3.21 (Hochreiter and Schmidhuber 1997) have no forget gate (3.21 only adds to the cell); the forget gate
+      (Gers et al. 2000) lets a cell be reset and is what every LSTM since uses.
     * 3.12–3.13 print the cost as Σ (o_t − y_t), without a square, which is unbounded below and rewards any error
       of one sign. :func:`unfolding_loss` sums the *squared* error over the unfolded steps.
     * The end-of-episode head is trained by the same squared error on its probability (the Brier score).
+
+An ensemble of K members (beyond the thesis, against the "curse of model uncertainty" it names in 2.3) is one
+network with a leading member dimension on every weight, stepped by batched matrix products: K small models cost
+about what one does, where a loop over them would pay K times the per-step overhead that dominates at these sizes.
+The members start from different weights and are fitted on different held-out splits (``drrl.models.fit``), so they
+agree where the data pin the dynamics down and disagree where the data are thin. Imagination draws a member per
+episode (``drrl.models.imagined``). K = 1 is the thesis's single model.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -46,29 +54,31 @@ from torch import nn
 
 MODEL_KINDS = ("rnn", "lstm")
 FUTURE_INPUTS = ("predictions", "zeros")
+GATES = {"rnn": 1, "lstm": 4}  # blocks of pre-activations per layer: the state, or the LSTM's i, f, g, o
 
 
 @dataclass(frozen=True)
 class Prediction:
-    """What a model predicts for each unfolded step t: o_{t+1}, r_{t+1} and P(episode ends at t+1)."""
+    """What each of the K members predicts for each unfolded step t: o_{t+1}, r_{t+1} and P(episode ends at t+1)."""
 
-    observations: torch.Tensor  # (..., o)
-    rewards: torch.Tensor  # (...)
-    ends: torch.Tensor  # (...) probabilities
+    observations: torch.Tensor  # (K, ..., o)
+    rewards: torch.Tensor  # (K, ...)
+    ends: torch.Tensor  # (K, ...) probabilities
 
 
 class WorldModel(nn.Module):
-    """A stacked state-space RNN (``kind="rnn"``, 3.4–3.11) or LSTM (``kind="lstm"``, 3.5.2) world model.
+    """K stacked state-space RNNs (``kind="rnn"``, 3.4–3.11) or LSTMs (``kind="lstm"``, 3.5.2), stepped as one.
 
     Args:
         observation_size, action_size: sizes of o_t and a_t.
         hidden: the width of each stacked layer, e.g. (64,) or (64, 64).
         kind: "rnn" (s_t = tanh(W x_t + B s_{t−1} + b)) or "lstm".
         future_inputs: what the overshooting part reads, "predictions" (dynamical consistency) or "zeros".
+        members: K, the ensemble's size; every output has a leading dimension K.
     """
 
     def __init__(self, observation_size: int, action_size: int, hidden: Sequence[int] = (64,), kind: str = "rnn",
-                 future_inputs: str = "predictions"):
+                 future_inputs: str = "predictions", members: int = 1):
         super().__init__()
         if kind not in MODEL_KINDS:
             raise ValueError(f"unknown model kind {kind!r}; choose one of: {', '.join(MODEL_KINDS)}")
@@ -77,114 +87,178 @@ class WorldModel(nn.Module):
         hidden = tuple(int(width) for width in hidden)
         if not hidden or min(hidden) < 1:
             raise ValueError(f"hidden must hold at least one positive layer width, got {hidden}")
+        if members < 1:
+            raise ValueError(f"a world model needs at least one member, got members={members}")
         self.observation_size, self.action_size = observation_size, action_size
-        self.hidden, self.kind, self.future_inputs = hidden, kind, future_inputs
-        cell = nn.RNNCell if kind == "rnn" else nn.LSTMCell
+        self.hidden, self.kind, self.future_inputs, self.members = hidden, kind, future_inputs, members
         widths = (observation_size + action_size, *hidden)
-        self.layers = nn.ModuleList(cell(fan_in, fan_out) for fan_in, fan_out in zip(widths[:-1], widths[1:]))
-        self.readout = nn.Linear(hidden[-1], observation_size + 2)  # A: change of o, reward, end logit
-        # Normalisation, set from the data by set_scales(); buffers, so that state_dict() holds them.
-        self.register_buffer("observation_mean", torch.zeros(observation_size))
-        self.register_buffer("observation_scale", torch.ones(observation_size))
-        self.register_buffer("change_scale", torch.ones(observation_size))
-        self.register_buffer("reward_mean", torch.zeros(()))
-        self.register_buffer("reward_scale", torch.ones(()))
+        gates = GATES[kind]
+        # W, B and b of every layer (3.4), and the read-out A, c (3.7); torch's initialisation, U(±1/√width)
+        self.input_weights = nn.ParameterList(_uniform(members, fan_in, gates * width, width)
+                                              for fan_in, width in zip(widths[:-1], widths[1:]))
+        self.recurrent_weights = nn.ParameterList(_uniform(members, width, gates * width, width) for width in hidden)
+        self.biases = nn.ParameterList(_uniform(members, 1, gates * width, width) for width in hidden)
+        self.readout_weight = _uniform(members, hidden[-1], observation_size + 2, hidden[-1])  # change, reward, end
+        self.readout_bias = _uniform(members, 1, observation_size + 2, hidden[-1])
+        # Normalisation per member, set from the data by set_scales(); buffers, so that state_dict() holds them.
+        self.register_buffer("observation_mean", torch.zeros(members, observation_size))
+        self.register_buffer("observation_scale", torch.ones(members, observation_size))
+        self.register_buffer("change_scale", torch.ones(members, observation_size))
+        self.register_buffer("reward_mean", torch.zeros(members))
+        self.register_buffer("reward_scale", torch.ones(members))
+
+    def __len__(self) -> int:
+        return self.members
+
+    @property
+    def device(self) -> torch.device:
+        return self.readout_weight.device
 
     def set_scales(self, scales: dict[str, torch.Tensor]) -> None:
-        """Copy the data's normalisation (``EpisodeBuffer.scales()``) into the model."""
+        """Copy the data's normalisation (``EpisodeBuffer.scales()``, or such tensors stacked per member)."""
         for name, value in scales.items():
             getattr(self, name).copy_(value)
 
     def initial_state(self, batch: int) -> list[torch.Tensor]:
-        """Zero hidden states for ``batch`` sequences: [s¹, s², …] for "rnn", [h¹, c¹, h², c², …] for "lstm"."""
-        device = self.readout.weight.device
+        """Zero hidden states (K, batch, width): [s¹, s², …] for "rnn", [h¹, c¹, h², c², …] for "lstm"."""
         per_layer = 1 if self.kind == "rnn" else 2
-        return [torch.zeros(batch, width, device=device) for width in self.hidden for _ in range(per_layer)]
+        return [torch.zeros(self.members, batch, width, device=self.device)
+                for width in self.hidden for _ in range(per_layer)]
 
     def _advance(self, x: torch.Tensor, state: list[torch.Tensor]) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """The stacked layers on the network input x = (normalised o_t, a_t): read-out y_t (3.7), new state."""
+        """The stacked layers on network inputs x (K, B, ·) = (normalised o_t, a_t): read-outs y_t (3.7), new
+        state."""
         new_state = []
-        for i, layer in enumerate(self.layers):
+        for i, (w, b, bias) in enumerate(zip(self.input_weights, self.recurrent_weights, self.biases)):
             if self.kind == "rnn":
-                x = layer(x, state[i])
+                x = torch.tanh(torch.baddbmm(bias, x, w) + torch.bmm(state[i], b))
                 new_state.append(x)
             else:
-                x, cell = layer(x, (state[2 * i], state[2 * i + 1]))
+                gates = torch.baddbmm(bias, x, w) + torch.bmm(state[2 * i], b)
+                input_gate, forget_gate, cell_input, output_gate = gates.chunk(4, dim=-1)
+                cell = (torch.sigmoid(forget_gate) * state[2 * i + 1]
+                        + torch.sigmoid(input_gate) * torch.tanh(cell_input))
+                x = torch.sigmoid(output_gate) * torch.tanh(cell)
                 new_state += [x, cell]
-        return self.readout(x), new_state
+        return torch.baddbmm(self.readout_bias, x, self.readout_weight), new_state
+
+    def _normalise(self, observation: torch.Tensor) -> torch.Tensor:
+        return (observation - _per_member(self.observation_mean, observation)) / _per_member(self.observation_scale,
+                                                                                             observation)
 
     def _next_observation(self, observation: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-        return observation + y[..., :-2] * self.change_scale
+        change = y[..., :-2]
+        return observation + change * _per_member(self.change_scale, change)
 
     def _heads(self, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Reward and end probability from read-outs y."""
-        return y[..., -2] * self.reward_scale + self.reward_mean, torch.sigmoid(y[..., -1])
+        reward = y[..., -2]
+        return (reward * _per_member(self.reward_scale, reward) + _per_member(self.reward_mean, reward),
+                torch.sigmoid(y[..., -1]))
+
+    def _per_member_inputs(self, tensor: torch.Tensor, per_member_ndim: int) -> torch.Tensor:
+        """``tensor`` with its leading member dimension K, added (every member reads the same) if it lacks one."""
+        if tensor.dim() == per_member_ndim:
+            return tensor.expand(self.members, *tensor.shape)
+        if tensor.dim() != per_member_ndim + 1 or tensor.shape[0] != self.members:
+            raise ValueError(f"expected a tensor of {per_member_ndim} dimensions, or {per_member_ndim + 1} with "
+                             f"{self.members} member(s) first, got shape {tuple(tensor.shape)}")
+        return tensor
 
     def step(self, observation: torch.Tensor, action: torch.Tensor, state: list[torch.Tensor],
              observed: bool | torch.Tensor = True) -> tuple[Prediction, list[torch.Tensor]]:
-        """One unfolded step for a batch: o_t (B, o), a_t (B, a) → prediction of step t+1, new state.
+        """One unfolded step for a batch: o_t (B, o) and a_t (B, a), read by every member, or (K, B, ·) each its
+        own → every member's prediction of step t+1 (K, B, ·), new state.
 
         ``observed`` (a bool, or one per sequence) False marks a step of the overshooting part: with
         ``future_inputs="zeros"`` the network then reads 0 instead of ``observation`` (which is still the base the
         predicted change is added to).
         """
-        x = (observation - self.observation_mean) / self.observation_scale
+        observation = self._per_member_inputs(observation, 2)
+        x = self._normalise(observation)
         if self.future_inputs == "zeros" and observed is not True:
-            x = x * torch.as_tensor(observed, dtype=x.dtype, device=x.device).reshape(-1, 1)
-        y, new_state = self._advance(torch.cat([x, action], dim=-1), state)
+            x = x * torch.as_tensor(observed, dtype=x.dtype, device=x.device).reshape(1, -1, 1)
+        y, new_state = self._advance(torch.cat([x, self._per_member_inputs(action, 2)], dim=-1), state)
         rewards, ends = self._heads(y)
         return Prediction(self._next_observation(observation, y), rewards, ends), new_state
 
     def unfold(self, observations: torch.Tensor, actions: torch.Tensor, observed_steps: int) -> Prediction:
-        """Unfold over windows of L steps: observations o_0..o_{L−1} (B, L, o), actions a_0..a_{L−1} (B, L, a).
+        """Unfold over windows of L steps: observations o_0..o_{L−1} (B, L, o), actions a_0..a_{L−1} (B, L, a),
+        the same for every member, or (K, B, L, ·) each member its own.
 
         Steps t < ``observed_steps`` read o_t from the data; the later ones are the overshooting part and read the
-        model's own prediction ô_t (dynamical consistency), never the data. Returns predictions of o_1..o_L,
-        r_1..r_L and the ends, each with the window's shape (B, L, …).
+        model's own prediction ô_t (dynamical consistency), never the data. Returns each member's predictions of
+        o_1..o_L, r_1..r_L and the ends, (K, B, L, …).
 
         The same computation as L calls of :meth:`step`, with the per-step work cut to what the recurrence needs
         (the observed inputs are normalised at once, the reward and end heads read the stacked read-outs after
         the loop): fitting spends most of its time here.
         """
-        length = actions.shape[1]
+        observations, actions = self._per_member_inputs(observations, 3), self._per_member_inputs(actions, 3)
+        length = actions.shape[2]
         if not 1 <= observed_steps <= length:
             raise ValueError(f"observed_steps must be in [1, {length}] for windows of {length} steps, "
                              f"got {observed_steps}")
-        inputs = torch.cat([(observations[:, :observed_steps] - self.observation_mean) / self.observation_scale,
-                            actions[:, :observed_steps]], dim=-1)
-        state = self.initial_state(actions.shape[0])
+        inputs = torch.cat([self._normalise(observations[:, :, :observed_steps]),
+                            actions[:, :, :observed_steps]], dim=-1)
+        state = self.initial_state(actions.shape[1])
         outputs, predicted = [], []
         for t in range(length):
             if t < observed_steps:
-                x, base = inputs[:, t], observations[:, t]
+                x, base = inputs[:, :, t], observations[:, :, t]
             else:
-                fed = (base - self.observation_mean) / self.observation_scale
+                fed = self._normalise(base)
                 x = torch.cat([fed if self.future_inputs == "predictions" else torch.zeros_like(fed),
-                               actions[:, t]], dim=-1)
+                               actions[:, :, t]], dim=-1)
             y, state = self._advance(x, state)
             base = self._next_observation(base, y)
             outputs.append(y)
             predicted.append(base)
-        rewards, ends = self._heads(torch.stack(outputs, dim=1))
-        return Prediction(observations=torch.stack(predicted, dim=1), rewards=rewards, ends=ends)
+        rewards, ends = self._heads(torch.stack(outputs, dim=2))
+        return Prediction(observations=torch.stack(predicted, dim=2), rewards=rewards, ends=ends)
+
+    def disagreement(self, prediction: Prediction) -> torch.Tensor:
+        """(B,) the members' spread: the standard deviation over members of the predicted observation, in units of
+        the data's per-step change, averaged over the observation's entries; 0 for a single member."""
+        if self.members == 1:
+            return torch.zeros(prediction.observations.shape[1], device=prediction.observations.device)
+        scale = self.change_scale.mean(0)
+        return (prediction.observations / scale).std(dim=0).mean(dim=-1)
 
     def describe(self) -> str:
         layers = "×".join(map(str, self.hidden))
-        return f"{self.kind} {layers}, future inputs: {self.future_inputs}"
+        return f"{self.kind} {layers}, future inputs: {self.future_inputs}, {self.members} member(s)"
+
+
+def window_losses(model: WorldModel, prediction: Prediction, next_observations: torch.Tensor, rewards: torch.Tensor,
+                  ends: torch.Tensor, mask: torch.Tensor, learn_reward: bool = True) -> torch.Tensor:
+    """(K, B) each member's squared error summed over the unfolded steps of each window (3.12–3.13, squared).
+
+    Observation errors are measured in units of the data's per-step change (so a k-step error is comparable to k
+    one-step errors), rewards in units of their standard deviation; ``mask`` (B, L) or (K, B, L) drops steps past
+    an episode's end. With ``learn_reward=False`` (the task's reward is known in closed form) the reward and end
+    heads are not trained. The targets are (B, L, ·), the same for every member, or (K, B, L, ·).
+    """
+    error = ((prediction.observations - next_observations)
+             / _per_member(model.change_scale, prediction.observations)).square().sum(-1)
+    if learn_reward:
+        error = error + ((prediction.rewards - rewards) / _per_member(model.reward_scale, prediction.rewards)).square()
+        error = error + (prediction.ends - ends).square()
+    return (error * mask).sum(-1)
 
 
 def unfolding_loss(model: WorldModel, prediction: Prediction, next_observations: torch.Tensor,
                    rewards: torch.Tensor, ends: torch.Tensor, mask: torch.Tensor, learn_reward: bool = True
                    ) -> torch.Tensor:
-    """The squared error summed over the unfolded steps (3.12–3.13, squared), averaged over the windows.
+    """(K,) each member's :func:`window_losses` averaged over the windows."""
+    return window_losses(model, prediction, next_observations, rewards, ends, mask, learn_reward).mean(-1)
 
-    Observation errors are measured in units of the data's per-step change (so a k-step error is comparable to k
-    one-step errors), rewards in units of their standard deviation; ``mask`` (B, L) drops steps past an episode's
-    end. With ``learn_reward=False`` (the task's reward is known in closed form) the reward and end heads are not
-    trained.
-    """
-    error = ((prediction.observations - next_observations) / model.change_scale).square().sum(-1)
-    if learn_reward:
-        error = error + ((prediction.rewards - rewards) / model.reward_scale).square()
-        error = error + (prediction.ends - ends).square()
-    return (error * mask).sum() / mask.shape[0]
+
+def _uniform(members: int, rows: int, columns: int, width: int) -> nn.Parameter:
+    bound = 1.0 / math.sqrt(width)
+    return nn.Parameter(torch.empty(members, rows, columns).uniform_(-bound, bound))
+
+
+def _per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """Per-member ``values`` (K, *v) shaped to broadcast against ``like`` (K, …, *v)."""
+    return values.reshape(values.shape[0], *[1] * (like.dim() - values.dim()), *values.shape[1:])
