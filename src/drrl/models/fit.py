@@ -101,8 +101,8 @@ def fit(model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSet
     buffer.check_unfolding(settings.unfold, settings.overshoot)
     rng = np.random.default_rng(seed)
     splits = [_split(buffer, settings, rng) for _ in range(len(model))]
-    model.set_scales({name: torch.stack([training.scales()[name] for training, _ in splits])
-                      for name in buffer.scales()})
+    scales = [training.scales() for training, _ in splits]
+    model.set_scales({name: torch.stack([member[name] for member in scales]) for name in scales[0]})
     windows = buffer.windows(settings.unfold, settings.overshoot).to(model.device)
     episode_of_window = buffer.window_episodes(settings.unfold)
     train_index, train_weight = _member_windows([training for training, _ in splits], buffer, episode_of_window)
@@ -167,8 +167,7 @@ def fit(model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSet
     with torch.no_grad():
         train_loss = (losses_of(train_index) * train_weight).sum(-1) / train_counts
     return [FitReport(updates=updates, train_loss=float(train_loss[k]), valid_loss=float(best_loss[k]),
-                      held_out_episodes=len(held_out),
-                      stop=stop if stop != "patience" or since_best[k] >= settings.patience else "max_updates")
+                      held_out_episodes=len(held_out), stop=stop)
             for k, (_, held_out) in enumerate(splits)]
 
 
