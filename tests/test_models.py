@@ -56,6 +56,28 @@ def test_unfolding_and_overshooting_give_one_prediction_per_step(kind, hidden):
 
 
 @pytest.mark.parametrize("kind", ["rnn", "lstm"])
+def test_a_layer_computes_what_torchs_own_cell_computes(kind):
+    """The batched layers against nn.RNNCell (3.4: s_t = tanh(W x_t + B s_{t−1} + b)) and nn.LSTMCell."""
+    torch.manual_seed(0)
+    model = WorldModel(4, 1, (8,), kind)
+    cell = (torch.nn.RNNCell if kind == "rnn" else torch.nn.LSTMCell)(5, 8)
+    with torch.no_grad():
+        cell.weight_ih.copy_(model.input_weights[0][0].T)
+        cell.weight_hh.copy_(model.recurrent_weights[0][0].T)
+        cell.bias_ih.copy_(model.biases[0][0, 0])
+        cell.bias_hh.zero_()
+    state, reference = model.initial_state(3), None
+    for _ in range(3):
+        observation, action = torch.randn(3, 4), torch.randn(3, 1)
+        _, state = model.step(observation, action, state)
+        x = torch.cat([observation, action], dim=-1)  # the scales are 0 and 1 until set_scales
+        reference = cell(x, reference)
+        expected = [reference] if kind == "rnn" else list(reference)
+        for ours, theirs in zip(state, expected):
+            torch.testing.assert_close(ours[0], theirs)
+
+
+@pytest.mark.parametrize("kind", ["rnn", "lstm"])
 def test_the_gradient_of_the_last_overshooting_step_reaches_the_first_unfolded_step(kind):
     model = WorldModel(4, 1, (8, 8), kind)
     observations, actions = random_inputs(length=10)

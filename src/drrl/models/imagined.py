@@ -71,7 +71,7 @@ class ImaginedEnv(VectorEnv):
         self.horizon = horizon
         self.known_reward = known_reward
         self.disagreement_penalty = disagreement_penalty
-        self.device = next(model.parameters()).device
+        self.device = model.device
         self._starts = torch.as_tensor(starts, device=self.device)
         bound = np.finfo(np.float32).max
         self.single_observation_space = spaces.Box(-bound, bound, (starts.shape[1],), np.float32)
