@@ -1,6 +1,6 @@
 """Real training episodes until the centre policy reaches Baxter's target (thesis 5.2, reward 5.10).
 
-For each seed, drrl's training loop (``drrl.train.run``, what ``train`` runs) spends a budget of real episodes on
+For each seed, drrl's training loop (``drrl.loop.run``, what ``drrl.train.train`` runs) spends a budget of real episodes on
 PGPE over a Baxter reach env. Every ``--probe-every`` generations the centre policy μ runs ``--eval-episodes`` fresh
 episodes (counted apart, never as training), and we record the fraction that end with the end-point(s) within
 0.05 m of the target(s) and not failed. Prints, per seed, the real episodes and training wall time when μ first
@@ -23,9 +23,10 @@ import torch
 from drrl.config import TrainConfig
 from drrl.envs.baxter.task import reach_fraction
 from drrl.envs.batch import ActionMap, make_batch_env
+from drrl.loop import Counters, Setup, Subscriber, run
 from drrl.policies import Policy
 from drrl.runs import RunFolder
-from drrl.train import build_policy, prepare, run
+from drrl.train import build_policy, prepare, subscribers
 
 
 @torch.inference_mode()
@@ -47,11 +48,11 @@ def final_distances(policy: Policy, center: torch.Tensor, env, seed: int) -> tup
     return distance, failed
 
 
-class ReachProbe(RunFolder):
-    """A run folder that, at every checkpoint, also measures how often the centre policy ends at its target."""
+class ReachProbe(Subscriber):
+    """A subscriber of the training loop that, at the start, at every checkpoint and at the end, measures how often
+    the centre policy ends at its target."""
 
-    def __init__(self, path, config: TrainConfig, eval_episodes: int, verbose: bool = False):
-        super().__init__(path)
+    def __init__(self, config: TrainConfig, eval_episodes: int, verbose: bool = False):
         self.seed, self.verbose = config.seed, verbose
         self.env = make_batch_env(config.env, eval_episodes)
         self.policy = build_policy(config, self.env)
@@ -59,13 +60,22 @@ class ReachProbe(RunFolder):
         self.probing_seconds = 0.0  # not training time
         self.history: list[dict] = []  # one row per probe
 
-    def save_checkpoint(self, state: dict) -> None:
-        super().save_checkpoint(state)
-        if self.history and self.history[-1]["generation"] == state["generation"]:
+    def started(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        self.start = time.perf_counter()
+        self.probe(snapshot)
+
+    def checkpoint(self, snapshot: dict) -> None:
+        self.probe(snapshot)
+
+    def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        self.probe(snapshot)
+
+    def probe(self, state: dict) -> None:
+        if self.history and self.history[-1]["generation"] == state["iteration"]:
             return  # the final checkpoint repeats the last one
         probe_start = time.perf_counter()
-        distance, failed = final_distances(self.policy, state["center"], self.env, seed=state["generation"])
-        self.history.append({"generation": state["generation"], "real_episodes": state["real_episodes"],
+        distance, failed = final_distances(self.policy, state["center"], self.env, seed=state["iteration"])
+        self.history.append({"generation": state["iteration"], "real_episodes": state["real_episodes"],
                              "seconds": probe_start - self.start - self.probing_seconds,
                              "reached": reach_fraction(torch.as_tensor(distance), torch.as_tensor(failed)),
                              "failed": float(failed.mean()), "median_distance": float(np.median(distance))})
@@ -76,9 +86,6 @@ class ReachProbe(RunFolder):
                   f"{row['seconds']:.0f} s, reached {row['reached']:.2f}, failed {row['failed']:.2f}, "
                   f"median distance {row['median_distance']:.3f} m", flush=True)
 
-    def plot_learning_curve(self, title: str):
-        """Not needed here (and skipped: it rereads metrics.csv, whose rows vary when μ is measured rarely)."""
-
 
 def run_seed(args, seed: int) -> list[dict]:
     config = TrainConfig(env=args.env, policy=args.policy, sampler="symmetric", optimizer=args.optimizer,
@@ -86,9 +93,11 @@ def run_seed(args, seed: int) -> list[dict]:
                          sigma_init=args.sigma_init, center_lr=args.center_lr, sigma_lr=args.sigma_lr,
                          eval_episodes=1, eval_every=10**6, checkpoint_every=args.probe_every, seed=seed)
     with tempfile.TemporaryDirectory() as folder:
-        probe = ReachProbe(folder, config, args.eval_episodes, args.verbose)
-        run(prepare(config), probe, progress=False)  # drrl.train.train's loop, writing into our probing folder
-        probe.env.close()
+        probe = ReachProbe(config, args.eval_episodes, args.verbose)
+        try:  # drrl.train.train's loop and run folder, with the probe told of every checkpoint
+            run(prepare(config), [*subscribers(RunFolder(folder), progress=False), probe])
+        finally:
+            probe.env.close()
     return probe.history
 
 

@@ -61,7 +61,7 @@ def trial(settings: list[str], out: Path, kill_after: float) -> tuple[int, int]:
     process.kill()
     process.wait()
     written = len(metrics(out)) if (out / "metrics.csv").exists() else 0
-    saved = RunFolder(out).load_checkpoint()["generation"]
+    saved = RunFolder(out).load_checkpoint()["iteration"]
     subprocess.run([DRRL, "train", "--resume", str(out), "--quiet"], check=True, stdout=subprocess.DEVNULL)
     return written, saved
 

@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from drrl.config import load_config_file
-from drrl.envs.batch import resolve_env_id
-from drrl.envs.solved import VERDICTS
-from drrl.model_based import model_based_config, train_model_based
+from drrl.config import TrainConfig, load_config_file
+from drrl.envs.registry import lookup
+from drrl.loop import run
 from drrl.models import EpisodeBuffer, ModelBasedSettings
 from drrl.models.quality import model_quality_report
+from drrl.train import prepare
 from sample_efficiency import first_reached, median_or_miss
 
 
@@ -51,15 +51,16 @@ def main() -> None:
                 **{name: value for name in ("env", "policy", "budget") if (value := getattr(args, name)) is not None},
                 **json.loads(args.search)}
     model_settings = {**(settings.pop("model_based", None) or {}), **json.loads(args.model_based)}
-    criteria = list(VERDICTS[resolve_env_id(settings["env"])](torch.zeros(1, 1), torch.zeros(1, 1, dtype=torch.bool)))
+    criteria = list(lookup(settings["env"]).criteria())
     reached = {criterion: [] for criterion in criteria}
     walls, cpus, finals = [], [], []
     print(f"| seed | {' | '.join(f'episodes to {c}' for c in criteria)} | final centre return | wall s | cpu s |")
     print("| --- " * (len(criteria) + 4) + "|")
     for seed in range(args.first_seed, args.first_seed + args.seeds):
-        config = model_based_config(model_settings, **{**settings, "seed": seed})
+        config = TrainConfig.model_validate({**settings, "seed": seed, "model_based": model_settings})
         wall, cpu = time.perf_counter(), time.process_time()
-        result = train_model_based(config)
+        setup = prepare(config)
+        result = run(setup)
         walls.append(time.perf_counter() - wall)
         cpus.append(time.process_time() - cpu)
         finals.append(result.rows[-1]["center_return"])
@@ -71,7 +72,7 @@ def main() -> None:
         print(f"| {seed} | {' | '.join(str(reached[c][-1]) for c in criteria)} | {finals[-1]:.1f} "
               f"| {walls[-1]:.0f} | {cpus[-1]:.0f} |", flush=True)
         if args.quality and seed == args.first_seed:
-            quality_plot(result.buffer, args.quality, seed, config.model_based)
+            quality_plot(setup.world.buffer, args.quality, seed, config.model_based)
     print()
     for criterion in criteria:
         hits = sum(v is not None for v in reached[criterion])

@@ -425,11 +425,12 @@ def test_headless_gl_prefers_egl_then_osmesa_and_else_leaves_rendering_off(monke
 def test_short_training_runs_and_counts_every_step():
     """Four candidates near the zero policy (σ = 0.001) hold still for max_steps = 25 steps: nothing fails, so
     every episode lasts exactly 25 steps."""
-    from drrl.train import prepare, run
+    from drrl.loop import run
+    from drrl.train import prepare
 
     config = TrainConfig(env="drrl/BaxterReachRight-v0", popsize=4, budget=8, sigma_init=0.001, max_steps=25,
                          eval_episodes=2)
-    counters = run(prepare(config), progress=False)
-    assert counters.generation == 2 and counters.real_episodes == 8
+    counters = run(prepare(config))
+    assert counters.iteration == 2 and counters.real_episodes == 8
     assert counters.real_steps == 8 * 25
     assert counters.rows[-1]["center_return"] == -25.0  # 25 steps away from the target

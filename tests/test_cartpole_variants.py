@@ -20,8 +20,10 @@ from drrl.envs.cartpole import (
     CartPoleVectorEnv,
     PartiallyObservedTask,
     SwingUpTask,
+    balance_verdict,
+    swing_up_verdict,
 )
-from drrl.envs.solved import VERDICTS, cartpole_verdict, swing_up_verdict
+from drrl.envs.registry import lookup
 
 VARIANTS = [("drrl/CartPolePO-v0", "cartpole-po", PartiallyObservedTask), ("drrl/CartPoleSwingUp-v0",
                                                                             "cartpole-swingup", SwingUpTask)]
@@ -51,8 +53,8 @@ def test_make_vec_and_the_alias_give_the_native_vector_env(env_id, alias, task):
 
 def test_the_balance_task_keeps_its_registration_and_verdicts_are_registered():
     assert type(gym.make_vec("drrl/CartPole-v0", num_envs=2).task) is BalanceTask
-    assert VERDICTS["drrl/CartPolePO-v0"] is cartpole_verdict
-    assert VERDICTS["drrl/CartPoleSwingUp-v0"] is swing_up_verdict
+    assert lookup("drrl/CartPolePO-v0").verdict is balance_verdict
+    assert lookup("drrl/CartPoleSwingUp-v0").verdict is swing_up_verdict
 
 
 # -------------------------------------------------------------------------------------------------- partially observed
@@ -83,7 +85,7 @@ def test_balanced_alone_does_not_need_the_velocities():
         obs, reward, terminated, _, _ = env.step(np.clip(0.25 * obs[:, 1:2], -1, 1))
         returns += reward
         failed |= terminated
-    verdict = cartpole_verdict(torch.as_tensor(returns), torch.as_tensor(failed))
+    verdict = balance_verdict(torch.as_tensor(returns), torch.as_tensor(failed))
     assert verdict == {"balanced": True, "near_optimal": False}
 
 

@@ -37,7 +37,7 @@ def test_train_writes_a_readable_run_folder_and_counts_real_episodes(tmp_path):
     assert [int(r["eval_episodes"]) for r in rows] == [5, 10, 15, 20]  # measuring is counted apart
     steps = [int(r["real_steps"]) for r in rows]
     assert all(10 <= b - a <= 10 * 200 for a, b in zip([0, *steps], steps))
-    assert "40 real episodes" in result.output
+    assert "done: 4 generations, 40 real episodes" in result.output
 
 
 def test_same_seed_gives_identical_metrics(tmp_path):
@@ -55,11 +55,11 @@ def test_checkpoint_restores_the_search_exactly(tmp_path):
     search = prepare(folder.read_config()).search
     search.load_state_dict(checkpoint["search"])
     assert torch.equal(search.center, checkpoint["center"])
-    assert checkpoint["real_episodes"] == 40 and checkpoint["generation"] == 4
+    assert checkpoint["real_episodes"] == 40 and checkpoint["iteration"] == 4
     # the best centre met the most verdict criteria (balanced, near-optimal) and, among those, returned most
     best = max(metrics(out), key=lambda row: (int(row["balanced"]) + int(row["near_optimal"]),
                                               float(row["center_return"])))
-    assert checkpoint["best_generation"] == int(best["generation"])
+    assert checkpoint["best_iteration"] == int(best["generation"])
     assert checkpoint["best_center_return"] == float(best["center_return"])
 
 
@@ -76,7 +76,7 @@ def test_measuring_every_few_generations_keeps_the_columns_and_prefers_a_balance
     assert balanced, "the defaults balance the cart-pole within 160 episodes"
     best = max(balanced, key=lambda row: (int(row["near_optimal"]), float(row["center_return"])))
     checkpoint = RunFolder(out).load_checkpoint()
-    assert checkpoint["best_generation"] == int(best["generation"]) and checkpoint["best_center_criteria"] >= 1
+    assert checkpoint["best_iteration"] == int(best["generation"]) and checkpoint["best_center_criteria"] >= 1
 
 
 def test_eval_reports_the_cartpole_verdicts(tmp_path):
@@ -144,8 +144,8 @@ def test_non_finite_returns_stop_the_run_name_the_candidate_and_keep_the_folder(
                         "--eval-episodes", "1", "--quiet")
     assert result.exit_code == 1
     assert "generation 1: " in result.output and "candidate 0" in result.output
-    assert "run folder and checkpoint kept" in result.output
-    assert RunFolder(out).load_checkpoint()["generation"] == 0
+    assert "run folder and checkpoint (generation 0) kept" in result.output
+    assert RunFolder(out).load_checkpoint()["iteration"] == 0
 
 
 def test_the_drrl_command_is_installed():

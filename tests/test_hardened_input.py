@@ -81,11 +81,11 @@ DAMAGE = {
     "foreign safetensors": (lambda f: save_file({"weight": torch.zeros(2)}, f.path / CHECKPOINT),
                             "holds no drrl state: not a drrl checkpoint"),
     "model-based": (lambda f: rewrite_checkpoint(f, lambda s: s.update(kind="model-based")),
-                    "checkpoint is of kind 'model-based'; --resume continues 'model-free' runs only"),
+                    "checkpoint is of kind 'model-based' but the run's config is 'model-free'"),
     "an old format": (lambda f: rewrite_checkpoint(f, lambda s: [s.pop(k) for k in ("wall_time", "real_steps")]),
                       "checkpoint lacks wall_time, real_steps"),
-    "a negative counter": (lambda f: rewrite_checkpoint(f, lambda s: s.update(generation=-2)),
-                           "checkpoint's generation is -2; it must be a whole number >= 0"),
+    "a negative counter": (lambda f: rewrite_checkpoint(f, lambda s: s.update(iteration=-2)),
+                           "checkpoint's iteration is -2; it must be a whole number >= 0"),
     "a NaN centre": (lambda f: rewrite_checkpoint(f, lambda s: s["center"].fill_(float("nan"))),
                      "checkpoint's center must be a 1-D tensor of finite numbers"),
     "another policy": (lambda f: (f.path / CONFIG).write_text(
@@ -148,8 +148,8 @@ def test_a_non_finite_observation_stops_the_run_with_a_message_and_a_checkpoint(
     assert result.exit_code == 1, result.output
     assert "generation 1: the environment returned a non-finite observation [nan nan] at step 1 of candidate" in (
         result.output)
-    assert f"run folder and checkpoint kept: {out}" in result.output
-    assert RunFolder(out).load_checkpoint()["generation"] == 0
+    assert f"run folder and checkpoint (generation 0) kept: {out}" in result.output
+    assert RunFolder(out).load_checkpoint()["iteration"] == 0
 
 
 def test_the_ray_backend_without_ray_says_how_to_install_it(tmp_path, monkeypatch):

@@ -9,11 +9,12 @@ from pydantic import ValidationError
 from drrl.cli import main
 from drrl.compare import MODEL_BASED, compare, method_config
 from drrl.config import TrainConfig
-from drrl.envs.solved import verdict_names
-from drrl.model_based import fitting_settings, model_based_config, prepare_model_based, train_model_based
+from drrl.envs.registry import lookup
+from drrl.loop import better_center, run
+from drrl.model_based import fitting_settings
 from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings
 from drrl.runs import RunFolder
-from drrl.train import better_center
+from drrl.train import prepare, train
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -22,28 +23,33 @@ pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 # 6 real episodes (2 + 2 + 2), a small model fitted briefly, 12 generations of 10 candidates × 4 imagined episodes.
 TINY_MODEL = dict(hidden=(16,), unfold=2, overshoot=6, fit_updates=100, refit_updates=80, generations=12,
                   patience=12)
-SMALL = model_based_config(TINY_MODEL, popsize=10, episodes_per_candidate=4, budget=6, eval_episodes=10, seed=1)
+SMALL = TrainConfig.model_validate(dict(popsize=10, episodes_per_candidate=4, budget=6, eval_episodes=10, seed=1,
+                                          model_based=TINY_MODEL))
 # Runs that only need to work, not to learn: a few updates and generations.
 QUICK_MODEL = {**TINY_MODEL, "fit_updates": 30, "refit_updates": 30, "generations": 3, "patience": 3}
 
 
 @pytest.fixture(scope="module")
 def small_run():
-    return train_model_based(SMALL)
+    """The counters of a small model-based run, and its world (the model and the real episodes)."""
+    setup = prepare(SMALL)
+    return run(setup), setup.world
 
 
 def test_model_based_pgpe_raises_the_real_return_on_a_small_budget(small_run):
-    returns = [row["center_return"] for row in small_run.rows]
+    counters, _ = small_run
+    returns = [row["center_return"] for row in counters.rows]
     assert len(returns) == 3  # 2 + 2 + 2 real episodes
     assert returns[-1] > returns[0] + 50
     assert returns[-1] > -200  # the zero policy, where the search starts, fails every episode (< -200)
 
 
 def test_model_based_counts_real_imagined_and_evaluation_episodes_apart(small_run):
-    rows = small_run.rows
+    counters, world = small_run
+    rows = counters.rows
     assert [row["real_episodes"] for row in rows] == [2, 4, 6]
-    assert small_run.real_episodes == len(small_run.buffer) == 6
-    assert small_run.real_steps == small_run.buffer.num_steps == rows[-1]["real_steps"]
+    assert counters.real_episodes == len(world.buffer) == 6
+    assert counters.real_steps == world.buffer.num_steps == rows[-1]["real_steps"]
     assert [row["eval_episodes"] for row in rows] == [10, 20, 30]
     per_iteration = 10 * 4 * 12  # popsize × imagined episodes per candidate × generations
     assert [row["imagined_episodes"] for row in rows] == [per_iteration, 2 * per_iteration, 3 * per_iteration]
@@ -59,17 +65,18 @@ def test_a_centre_that_meets_more_criteria_beats_one_with_a_higher_return():
 
 
 def test_model_based_keeps_the_centre_with_the_most_criteria_then_the_best_return(small_run):
-    names = verdict_names("drrl/CartPole-v0")
-    best = max(small_run.rows, key=lambda row: (sum(row[name] for name in names), row["center_return"]))
-    assert small_run.best_iteration == best["iteration"]
-    assert small_run.best_center_criteria == sum(best[name] for name in names)
-    assert small_run.best_center_return == best["center_return"]
+    counters, _ = small_run
+    names = lookup("drrl/CartPole-v0").criteria()
+    best = max(counters.rows, key=lambda row: (sum(row[name] for name in names), row["center_return"]))
+    assert counters.best_iteration == best["iteration"]
+    assert counters.best_center_criteria == sum(best[name] for name in names)
+    assert counters.best_center_return == best["center_return"]
 
 
 def test_the_in_model_search_stops_early_once_it_stops_improving():
-    config = model_based_config({**QUICK_MODEL, "generations": 200}, popsize=10,
-                                episodes_per_candidate=2, budget=2, eval_episodes=5)
-    row = train_model_based(config).rows[0]
+    config = TrainConfig.model_validate(dict(popsize=10, episodes_per_candidate=2, budget=2, eval_episodes=5,
+                                             model_based={**QUICK_MODEL, "generations": 200}))
+    row = train(config).rows[0]
     assert 3 <= row["generations"] < 200
     assert row["imagined_episodes"] == row["generations"] * 10 * 2
 
@@ -93,19 +100,28 @@ def test_model_based_settings_are_validated_with_field_value_and_choices(model_b
     from drrl.config import describe_errors
 
     with pytest.raises(ValidationError) as error:
-        model_based_config(model_based)
+        TrainConfig.model_validate({"model_based": model_based})
     assert message in describe_errors(error.value)
 
 
 @pytest.mark.parametrize("change, message", [
     (dict(env="Pendulum-v1", model_based={"reward": "known"}), "no closed-form reward is known"),
     (dict(budget=1), "fewer than model_based.initial_episodes"),
-    (dict(model_based=None, budget=40), "model-free config"),
 ])
 def test_model_based_runs_are_checked_before_any_work(change, message):
     config = TrainConfig.model_validate({**SMALL.model_dump(), **change})
     with pytest.raises(ValueError, match=message):
-        prepare_model_based(config)
+        prepare(config)
+
+
+def test_a_config_without_model_based_prepares_a_model_free_run():
+    # (prepare_model_based refused a model-free config; the one prepare now builds either kind of run)
+    config = TrainConfig.model_validate({**SMALL.model_dump(), "model_based": None, "budget": 40})
+    setup = prepare(config)
+    try:
+        assert setup.world.kind == "model-free" and setup.world.unit == "generation"
+    finally:
+        setup.close()
 
 
 # ------------------------------------------------------------------------------------------------ the command
@@ -135,8 +151,8 @@ def test_train_model_based_writes_the_run_folder_and_eval_reads_it(tmp_path):
     assert int(rows[-1]["real_steps"]) > 0 and int(rows[-1]["imagined_steps"]) > int(rows[-1]["real_steps"])
     checkpoint = RunFolder(out).load_checkpoint()
     assert checkpoint["real_episodes"] == 4 and checkpoint["real_steps"] == int(rows[-1]["real_steps"])
-    assert checkpoint["buffer"]["lengths"].sum() == checkpoint["real_steps"]
-    assert checkpoint["model"]["readout_weight"].shape[0] == 2  # both ensemble members
+    assert checkpoint["world"]["buffer"]["lengths"].sum() == checkpoint["real_steps"]
+    assert checkpoint["world"]["model"]["readout_weight"].shape[0] == 2  # both ensemble members
     evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "3"])
     assert evaluation.exit_code == 0 and "balanced:" in evaluation.output
 
@@ -157,15 +173,57 @@ def test_train_refuses_bad_model_based_options(tmp_path, args, message):
 def test_a_diverging_model_stops_the_run_and_keeps_the_data_and_the_model(tmp_path, monkeypatch):
     import drrl.model_based as model_based
 
-    monkeypatch.setattr(model_based, "fit", lambda *args, **kwargs: [FitReport(7, float("nan"), 1.0, 0, "diverged")])
+    # The checkpoint keeps the last whole iteration, so the model diverges in the second fit (iteration 2): the
+    # real episodes and the model of iteration 1 must survive it.
+    fits, real_fit = [], model_based.fit
+
+    def fit_then_diverge(*args, **kwargs):
+        fits.append(1)
+        if len(fits) == 1:
+            return real_fit(*args, **kwargs)
+        return [FitReport(7, float("nan"), 1.0, 0, "diverged")]
+
+    monkeypatch.setattr(model_based, "fit", fit_then_diverge)
     out = tmp_path / "run"
     result = CliRunner().invoke(main, ["train", "cartpole", "--model-based", "--budget", "4",
                                        "--config", str(tiny_config(tmp_path)), "--out", str(out), "--quiet"])
     assert result.exit_code == 1 and "loss turned non-finite" in result.output
-    assert "run folder and checkpoint kept" in result.output
+    assert "run folder and checkpoint (iteration 1) kept" in result.output
+    assert f"continue with: drrl train --resume {out}" in result.output
+    assert len(fits) == 2
     checkpoint = RunFolder(out).load_checkpoint()
-    assert checkpoint["real_episodes"] == 2 and len(checkpoint["buffer"]["lengths"]) == 2
-    assert checkpoint["model"] and checkpoint["generation"] == 1
+    assert checkpoint["real_episodes"] == 2 and len(checkpoint["world"]["buffer"]["lengths"]) == 2
+    assert checkpoint["world"]["model"] and checkpoint["iteration"] == 1
+
+
+def test_a_stopped_model_based_run_resumes_from_the_command_line_to_the_uninterrupted_metrics(tmp_path, monkeypatch):
+    # (--resume refused model-based runs before; now it continues them exactly, the timing columns aside)
+    import drrl.model_based as model_based
+
+    args = ["train", "cartpole", "--model-based", "--budget", "6", "--config", str(tiny_config(tmp_path)), "--quiet"]
+    whole = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "whole")])
+    assert whole.exit_code == 0 and "done: 3 iterations" in whole.output, whole.output
+    real_fit, fits = model_based.fit, []
+
+    def diverge_in_the_third_fit(*args, **kwargs):
+        fits.append(1)
+        return real_fit(*args, **kwargs) if len(fits) < 3 else [FitReport(7, float("nan"), 1.0, 0, "diverged")]
+
+    monkeypatch.setattr(model_based, "fit", diverge_in_the_third_fit)
+    out = tmp_path / "stopped"
+    stopped = CliRunner().invoke(main, [*args, "--out", str(out)])
+    assert stopped.exit_code == 1 and f"continue with: drrl train --resume {out}" in stopped.output
+    monkeypatch.setattr(model_based, "fit", real_fit)
+    resumed = CliRunner().invoke(main, ["train", "--resume", str(out), "--quiet"])
+    assert resumed.exit_code == 0, resumed.output
+    assert f"resuming {out} at iteration 3 of 3" in resumed.output and "done: 3 iterations" in resumed.output
+
+    def rows(folder):
+        with (folder / "metrics.csv").open() as handle:
+            return [{k: v for k, v in row.items() if k not in ("wall_time", "fit_time", "search_time")}
+                    for row in csv.DictReader(handle)]
+
+    assert rows(out) == rows(tmp_path / "whole") and len(rows(out)) == 3
 
 
 def test_compare_writes_one_png_and_one_csv_with_every_method(tmp_path):

@@ -7,8 +7,8 @@ import torch
 
 from drrl.envs.batch import make_batch_env
 from drrl.envs.cartpole import BalanceTask, PartiallyObservedTask, SwingUpTask
-from drrl.models import (KNOWN_REWARDS, Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv,
-                         WorldModel)
+from drrl.envs.registry import lookup
+from drrl.models import Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv, WorldModel
 from drrl.models import fit as fit_module
 from drrl.models.fit import clip_member_gradients, fit
 from drrl.models.quality import k_step_errors, model_quality_report
@@ -259,7 +259,7 @@ def test_the_imagined_env_is_a_vector_env_that_evaluate_runs_unchanged():
     ensemble = WorldModel(4, 1, (8,), members=2)
     action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
     env = ImaginedEnv(ensemble, cartpole_starts(), 4 * 3, action_space, horizon=20,
-                      known_reward=KNOWN_REWARDS["drrl/CartPole-v0"])
+                      known_reward=lookup("drrl/CartPole-v0").reward)
     observations, _ = env.reset(seed=[11, 12, 13] * 4)
     assert observations.shape == (12, 4)
     assert {tuple(o) for o in observations} <= {tuple(s) for s in cartpole_starts()}  # real starts only
@@ -306,7 +306,7 @@ def test_known_rewards_on_observations_equal_the_tasks_rewards_on_states(env_id,
     states = np.random.default_rng(0).normal(size=(500, 4)) * [1.5, 1.0, 0.5, 1.0]
     steps = np.arange(500) % task.horizon + 1
     expected_reward, expected_end = task.reward(states, steps)
-    reward, end = KNOWN_REWARDS[env_id](task.observe(states), steps)
+    reward, end = lookup(env_id).reward(task.observe(states), steps)
     np.testing.assert_allclose(reward, expected_reward, atol=1e-6)
     np.testing.assert_array_equal(end, expected_end)
     assert end.any() and not end.all()

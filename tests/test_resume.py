@@ -68,7 +68,7 @@ def test_sigkill_at_a_random_moment_then_resume_gives_the_uninterrupted_run(tmp_
     delay = random.Random().uniform(0, 0.4)
     out = tmp_path / "run"
     start_and_stop(out, signal.SIGKILL, delay, "--checkpoint-every", "4")
-    written, saved = len(rows(out)), RunFolder(out).load_checkpoint()["generation"]
+    written, saved = len(rows(out)), RunFolder(out).load_checkpoint()["iteration"]
     assert saved <= written and saved % 4 == 0, (delay, written, saved)
     result = CliRunner().invoke(main, ["train", "--resume", str(out), "--quiet"])
     assert result.exit_code == 0, result.output
@@ -92,13 +92,13 @@ def test_sigterm_and_ctrl_c_save_the_last_whole_generation_and_say_how_to_resume
     threading.Thread(target=signal_after_three_rows, args=(out, how), daemon=True).start()
     long_run = ["--budget", "8000", "--checkpoint-every", "1000", "--out", str(out)]  # stopped long before its end
     result = CliRunner().invoke(main, ["train", *RUN, *long_run])
-    written, saved = len(rows(out)), RunFolder(out).load_checkpoint()["generation"]
+    written, saved = len(rows(out)), RunFolder(out).load_checkpoint()["iteration"]
     assert result.exit_code == 1 and 2 <= saved and saved in (written - 1, written), result.output
     assert f"checkpoint (generation {saved}) kept" in result.output
     assert f"continue with: drrl train --resume {out}" in result.output
     setup, counters = prepare_resume(RunFolder(out))
     setup.close()
-    assert counters.generation == saved and len(rows(out)) == saved  # metrics past the checkpoint dropped
+    assert counters.iteration == saved and len(rows(out)) == saved  # metrics past the checkpoint dropped
 
 
 def test_resuming_a_finished_run_changes_nothing(uninterrupted):

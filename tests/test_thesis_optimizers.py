@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from drrl.search.optimizers import AdamLambda, NesterovAG
+from drrl.models.optimizers import AdamLambda, NesterovAG
 
 
 def minimise_square(optimizer_class, steps, **settings):

@@ -10,15 +10,17 @@ from pydantic import ValidationError
 
 from drrl import __version__
 from drrl.config import TrainConfig, describe_errors, load_config_file
-from drrl.envs.batch import ENV_ALIASES, make_batch_env
-from drrl.envs.solved import VERDICTS
+from drrl.envs.batch import make_batch_env
+from drrl.envs.registry import aliases, lookup
+from drrl.loop import Counters, Setup, derive_seed, measure, run
 from drrl.runs import RunFolder
 from drrl.policies import ACCEPTED_FORMS
+from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 from drrl.rollout import BACKENDS, NonFiniteOutput
-from drrl.train import Counters, Setup, build_policy, derive_seed, measure, prepare, prepare_resume, run
-from drrl.cli_model_based import compare_command, model_based_options, pop_model_options, report, with_model_based
-from drrl.model_based import ModelDiverged, prepare_model_based, run_model_based
+from drrl.train import build_policy, prepare, prepare_resume, subscribers
+from drrl.cli_model_based import compare_command, model_based_options, pop_model_options, with_model_based
+from drrl.model_based import ModelDiverged
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
 
@@ -37,8 +39,9 @@ def main() -> None:
 
 @main.command("train")
 @click.argument("env_name", required=False, metavar="[ENV]")
-@click.option("--env", "env_option", help=f"Environment: {', '.join(ENV_ALIASES)} or any Gymnasium id (e.g. Pendulum-v1).")
+@click.option("--env", "env_option", help=f"Environment: {', '.join(aliases())} or any Gymnasium id (e.g. Pendulum-v1).")
 @setting("policy", str, ACCEPTED_FORMS)
+@setting("search", click.Choice(SEARCHES), "search: PGPE (the thesis), or CMA-ES with a full or diagonal covariance")
 @setting("sampler", click.Choice(SAMPLERS), "PGPE sampler")
 @setting("optimizer", click.Choice(OPTIMIZERS), "step rule for μ")
 @setting("fitness_shaping", click.Choice(FITNESS_SHAPINGS), "fitness shaping")
@@ -62,9 +65,11 @@ def main() -> None:
               help="where candidates are evaluated: this process, or Ray actors (pip install \"drrl[ray]\")")
 @click.option("--address", help="Ray cluster to join, e.g. 10.0.0.1:6379  [default: start a local Ray]")
 @click.option("--workers", type=click.IntRange(min=1), help="Ray actors  [default: one per CPU of the cluster]")
+@click.option("--tensorboard", is_flag=True, help="also log every metric for TensorBoard into RUN/tensorboard "
+                                                  "(pip install \"drrl[tensorboard]\")")
 @model_based_options
 def train_command(env_name, env_option, config_file, out, quiet, resume_path, backend, address, workers,
-                  model_based, **options) -> None:
+                  tensorboard, model_based, **options) -> None:
     """Train a policy with PGPE, e.g. `drrl train cartpole`; `drrl train --resume RUN` continues a stopped run."""
     if resume_path is not None:
         given = [name for name, value in [("ENV", env_name), ("--env", env_option), ("--config", config_file),
@@ -74,7 +79,7 @@ def train_command(env_name, env_option, config_file, out, quiet, resume_path, ba
         if given:
             raise click.UsageError(f"--resume continues RUN with the settings in its config.json; drop "
                                    f"{', '.join(given)}")
-        return resume_run(resume_path, backend, address, workers, quiet)
+        return resume_run(resume_path, backend, address, workers, quiet, tensorboard)
     if env_name and env_option and env_name != env_option:
         raise click.UsageError(f"two environments given: {env_name!r} and --env {env_option!r}")
     try:
@@ -93,51 +98,55 @@ def train_command(env_name, env_option, config_file, out, quiet, resume_path, ba
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}"
     try:
-        if config.model_based and backend != "local":
-            raise ValueError("--backend ray evaluates model-free runs only")
-        setup = prepare_model_based(config) if config.model_based else prepare(config, backend, address, workers)
-        folder = RunFolder.create(out)
-    except ValueError as error:  # unknown environment or policy, a space drrl cannot use, an occupied --out
+        setup = prepare(config, backend, address, workers)
+    except ValueError as error:  # unknown environment or policy, a space drrl cannot use, settings that conflict
         raise click.UsageError(str(error)) from None
-    if not config.model_based:
-        return run_and_report(setup, folder, quiet)
     try:
-        return report(run_model_based(setup, folder, progress=not quiet), out)
-    except ModelDiverged as error:
-        raise click.ClickException(f"{error}\nrun folder and checkpoint kept: {out}") from None
-    except KeyboardInterrupt:
-        raise click.ClickException(f"interrupted; run folder and checkpoint kept: {out}") from None
+        folder = RunFolder.create(out)
+        attached = subscribers(folder, not quiet, tensorboard)
+    except (ValueError, ImportError) as error:  # an occupied --out, TensorBoard not installed
+        setup.close()
+        raise click.UsageError(str(error)) from None
+    run_and_report(setup, folder, attached)
 
 
-def resume_run(path: Path, backend: str, address: str | None, workers: int | None, quiet: bool) -> None:
+def resume_run(path: Path, backend: str, address: str | None, workers: int | None, quiet: bool,
+               tensorboard: bool) -> None:
     """`drrl train --resume RUN`: the run rebuilt at its checkpoint, metrics past it dropped, then continued."""
     folder = RunFolder(path)
     try:
         setup, counters = prepare_resume(folder, backend, address, workers)
     except ValueError as error:
         raise click.ClickException(f"cannot resume {path}: {error}") from None
-    total = setup.config.generations
-    if counters.generation == total:
+    unit, total = setup.world.unit, setup.world.iterations
+    if counters.iteration == total:
         setup.close()
-        return click.echo(f"{path} is complete: all {total} generations done")
-    click.echo(f"resuming {path} at generation {counters.generation + 1} of {total}")
-    run_and_report(setup, folder, quiet, counters)
-
-
-def run_and_report(setup: Setup, folder: RunFolder, quiet: bool, counters: Counters | None = None) -> None:
-    """Run a model-free training loop, then say what it did; a stopped run says how to resume it."""
-    out = folder.path
+        return click.echo(f"{path} is complete: all {total} {unit}s done")
     try:
-        counters = run(setup, folder, progress=not quiet, counters=counters)
-    except NonFiniteOutput as error:
-        raise click.ClickException(f"{error}\nrun folder and checkpoint kept: {out}") from None
-    except KeyboardInterrupt:
-        generation = folder.load_checkpoint()["generation"]
-        raise click.ClickException(f"interrupted; run folder and checkpoint (generation {generation}) kept: {out}\n"
+        attached = subscribers(folder, not quiet, tensorboard)
+    except ImportError as error:
+        setup.close()
+        raise click.UsageError(str(error)) from None
+    click.echo(f"resuming {path} at {unit} {counters.iteration + 1} of {total}")
+    run_and_report(setup, folder, attached, counters)
+
+
+def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Counters | None = None) -> None:
+    """Run the training loop, then say what it did; a stopped run says how to resume it."""
+    out, unit = folder.path, setup.world.unit
+    try:
+        counters = run(setup, attached, counters)
+    except (NonFiniteOutput, ModelDiverged, KeyboardInterrupt) as error:
+        done = folder.load_checkpoint()["iteration"]
+        why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
+        raise click.ClickException(f"{why}\nrun folder and checkpoint ({unit} {done}) kept: {out}\n"
                                    f"continue with: drrl train --resume {out}") from None
-    click.echo(f"done: {counters.generation} generations, {counters.real_episodes} real episodes, "
-               f"{counters.real_steps} real steps; centre policy's return {counters.rows[-1]['center_return']:.1f} "
-               f"(best {counters.best_center_return:.1f}, generation {counters.best_generation})")
+    imagined = (f" ({counters.imagined_episodes} imagined episodes, {counters.imagined_steps} imagined steps apart)"
+                if counters.imagined_episodes else "")
+    click.echo(f"done: {counters.iteration} {unit}s, {counters.real_episodes} real episodes, "
+               f"{counters.real_steps} real steps{imagined}; centre policy's return "
+               f"{counters.rows[-1]['center_return']:.1f} (best {counters.best_center_return:.1f}, {unit} "
+               f"{counters.best_iteration})")
     click.echo(f"run folder: {out} (metrics.csv, learning_curve.png, checkpoint.safetensors)")
     click.echo(f"next: drrl eval {out}")
 
@@ -159,27 +168,23 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
         checkpoint = run.load_checkpoint()
     except ValueError as error:
         raise click.ClickException(str(error)) from None
-    env = make_batch_env(checkpoint["env_id"], episodes)
+    entry = lookup(checkpoint["env_id"])
+    env = make_batch_env(entry.env_id, episodes)
     policy = build_policy(config, env)
     center = checkpoint["center"] if final else checkpoint["best_center"]
-    which = (f"final centre (generation {checkpoint['generation']})" if final
-             else f"best measured centre (generation {checkpoint['best_generation']})")
-    result = measure(policy, center, env, config, derive_seed(seed, 0, EVAL_STREAM))
+    unit = checkpoint.get("unit", "generation")
+    step = checkpoint.get("best_iteration" if not final else "iteration",  # or as drrl 0.1 named them
+                          checkpoint.get("best_generation" if not final else "generation"))
+    which = f"{'final' if final else 'best measured'} centre ({unit} {step})"
+    result = measure(policy, center, env, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
     env.close()
     returns = result.episode_returns.flatten().numpy()
-    click.echo(f"{checkpoint['env_id']}, {config.policy} policy, {which}, {episodes} episodes: return "
+    click.echo(f"{entry.env_id}, {config.policy} policy, {which}, {episodes} episodes: return "
                f"{returns.mean():.1f} ± {returns.std():.1f} (min {returns.min():.1f}, max {returns.max():.1f})")
-    verdict = VERDICTS.get(checkpoint["env_id"])
-    if verdict is not None:
-        kept = int((~result.terminated).sum())
-        for name, ok in verdict(result.episode_returns, result.terminated).items():
-            click.echo(f"{name.replace('_', '-') + ':':14}{'yes' if ok else 'no'}")
-        if checkpoint["env_id"].startswith("drrl/Baxter"):
-            click.echo(f"({kept}/{episodes} episodes without a failure; held: every end-point within 0.05 m of "
-                       f"its target for at least half of the episode)")
-        else:
-            click.echo(f"({kept}/{episodes} episodes kept the pole up for all 200 steps; near-optimal needs a mean "
-                       f"return ≥ -50)")
+    for name, ok in entry.judge(result.episode_returns, result.terminated).items():
+        click.echo(f"{name.replace('_', '-') + ':':14}{'yes' if ok else 'no'}")
+    if entry.explain is not None:
+        click.echo(entry.explain(result.episode_returns, result.terminated))
 
 
 @main.command("render")

@@ -13,7 +13,6 @@ from pydantic import ValidationError
 
 from drrl.compare import METHODS, compare
 from drrl.config import TrainConfig, describe_errors, load_config_file
-from drrl.model_based import ModelBasedResult
 from drrl.models.recurrent import MODEL_KINDS
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
@@ -61,8 +60,8 @@ def pop_model_options(options: dict) -> dict:
 
 
 def with_model_based(settings: dict, model_based: bool, model_options: dict) -> dict:
-    """``settings`` for a model-based run: the model-based defaults under the config file's and the command line's
-    settings. Unchanged for a model-free run, which must not get world-model options."""
+    """``settings`` with the world-model options under ``model_based`` (TrainConfig then starts the fields left unset
+    from the model-based defaults). Unchanged for a model-free run, which must not get world-model options."""
     model_based = model_based or settings.get("model_based") is not None
     if not model_based:
         if model_options:
@@ -70,17 +69,7 @@ def with_model_based(settings: dict, model_based: bool, model_options: dict) -> 
                               if MODEL_OPTIONS[name] in model_options)
             raise click.UsageError(f"{names} only apply to a model-based run; add --model-based")
         return settings
-    return {**MODEL_BASED_DEFAULTS, **settings, "model_based": {**(settings.get("model_based") or {}), **model_options}}
-
-
-def report(result: ModelBasedResult, out: Path) -> None:
-    last = result.rows[-1]
-    click.echo(f"done: {result.iteration} iterations, {result.real_episodes} real episodes, {result.real_steps} "
-               f"real steps ({result.imagined_episodes} imagined episodes, {result.imagined_steps} imagined steps "
-               f"apart); centre policy's return {last['center_return']:.1f} (best {result.best_center_return:.1f}, "
-               f"iteration {result.best_iteration})")
-    click.echo(f"run folder: {out} (metrics.csv, learning_curve.png, checkpoint.safetensors)")
-    click.echo(f"next: drrl eval {out}")
+    return {**settings, "model_based": {**(settings.get("model_based") or {}), **model_options}}
 
 
 @click.command("compare")

@@ -21,8 +21,6 @@ from pathlib import Path
 
 import numpy as np
 from drrl.config import TrainConfig
-from drrl.model_based import train_model_based
-from drrl.models.settings import MODEL_BASED_DEFAULTS
 from drrl.train import train
 
 MODEL_FREE = {"REINFORCE-PGPE": "reinforce", "SyS-PGPE": "symmetric", "super-symmetric PGPE": "supersymmetric"}
@@ -50,9 +48,8 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
     """
     base = {key: value for key, value in settings.items() if key != "model_based"}
     if method == MODEL_BASED:
-        merged = {**MODEL_BASED_DEFAULTS, **base, "budget": budget, "seed": seed,
-                  "model_based": settings.get("model_based") or {}}
-        return TrainConfig.model_validate(merged)
+        return TrainConfig.model_validate({**base, "budget": budget, "seed": seed,
+                                           "model_based": settings.get("model_based") or {}})
     merged = {**base, "sampler": MODEL_FREE[method], "budget": budget, "seed": seed}
     if merged["sampler"] == "supersymmetric" and merged.get("popsize", 8) % 4:
         merged["popsize"] = 8
@@ -61,11 +58,8 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
 
 def run_method(method: str, seed: int, budget: int, settings: dict) -> list[tuple[int, float]]:
     """(real training episodes, centre's measured return) after each measurement of one run."""
-    config = method_config(method, seed, budget, settings)
-    if method == MODEL_BASED:
-        rows = train_model_based(config).rows
-    else:
-        rows = [row for row in train(config, progress=False).rows if row["center_return"] == row["center_return"]]
+    rows = train(method_config(method, seed, budget, settings)).rows
+    rows = [row for row in rows if row["center_return"] == row["center_return"]]
     return [(int(row["real_episodes"]), float(row["center_return"])) for row in rows]
 
 

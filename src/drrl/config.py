@@ -9,10 +9,12 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
-from drrl.models.settings import ModelBasedSettings, one_of
+from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings, one_of
+from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 
-CHOICES = {"sampler": SAMPLERS, "optimizer": OPTIMIZERS, "fitness_shaping": FITNESS_SHAPINGS}  # string settings
+CHOICES = {"search": SEARCHES, "sampler": SAMPLERS, "optimizer": OPTIMIZERS,
+           "fitness_shaping": FITNESS_SHAPINGS}  # string settings
 
 
 class TrainConfig(BaseModel):
@@ -22,12 +24,18 @@ class TrainConfig(BaseModel):
     bias-free linear policy (2.14), symmetric sampling (2.31–2.33), and ClipUp for μ, which reached a near-optimal
     policy in about half the real episodes plain gradient ascent needed; its step size 0.1 (not 0.2) keeps the
     centre from drifting away from the optimum once there.
+
+    ``model_based`` set makes a model-based run; the fields it leaves unset then start from
+    :data:`~drrl.models.settings.MODEL_BASED_DEFAULTS` instead of the model-free defaults (the one place they
+    merge). sampler, optimizer, center_lr, sigma_lr, fitness_shaping, baseline_decay and max_sigma_change are
+    PGPE's; CMA-ES (``search = "cmaes"`` or ``"sep-cmaes"``) uses popsize, sigma_init and seed only.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     env: str = "cartpole"
     policy: str = "linear:nobias"
+    search: str = "pgpe"
     sampler: str = "symmetric"
     optimizer: str = "clipup"
     fitness_shaping: str = "none"
@@ -52,11 +60,19 @@ class TrainConfig(BaseModel):
     def _known_choice(cls, value: str, info: ValidationInfo) -> str:
         return one_of(value, CHOICES[info.field_name])
 
+    @model_validator(mode="before")
+    @classmethod
+    def _model_based_defaults(cls, data):
+        if isinstance(data, dict) and data.get("model_based") is not None:
+            return {**MODEL_BASED_DEFAULTS, **data}
+        return data
+
     @model_validator(mode="after")
     def _consistent(self) -> TrainConfig:
-        if self.sampler == "symmetric" and self.popsize % 2:
+        pgpe = self.search == "pgpe"
+        if pgpe and self.sampler == "symmetric" and self.popsize % 2:
             raise ValueError(f"symmetric sampling needs an even popsize (pairs μ ± ε), got {self.popsize}")
-        if self.sampler == "supersymmetric" and self.popsize % 4:
+        if pgpe and self.sampler == "supersymmetric" and self.popsize % 4:
             raise ValueError(f"supersymmetric sampling needs a popsize divisible by 4, got {self.popsize}")
         if self.model_based is None and self.budget < self.episodes_per_generation:
             raise ValueError(f"budget of {self.budget} real episodes is smaller than one generation "

@@ -3,10 +3,14 @@
 drrl's own environments are native vector envs (``gymnasium.make_vec`` returns them); any other Gymnasium env with
 a 1-D Box observation and a Box or Discrete action is batched by Gymnasium's ``SyncVectorEnv``, which, unlike some
 native vector envs of Gymnasium, takes one reset seed per sub-environment. ``ActionMap`` turns
-a policy's raw outputs into actions of the env's action space.
+a policy's raw outputs into actions of the env's action space. An ``EnvSource`` names a batched env so that
+another process can make it: a registered id here, a learned model in :mod:`drrl.models.imagined`.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
 
 import gymnasium
 import numpy as np
@@ -14,21 +18,28 @@ import torch
 from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
-ENV_ALIASES = {"cartpole": "drrl/CartPole-v0", "cartpole-po": "drrl/CartPolePO-v0",
-               "cartpole-swingup": "drrl/CartPoleSwingUp-v0",
-               "baxter-reach": "drrl/BaxterReach-v0", "baxter-reach-dense": "drrl/BaxterReachDense-v0",
-               "baxter-reach-right": "drrl/BaxterReachRight-v0",
-               "baxter-reach-right-random": "drrl/BaxterReachRightRandom-v0"}
+from drrl.envs.registry import lookup
+
+class EnvSource(Protocol):
+    """Something a rollout process can rebuild a batched env from: small, picklable, made anew in each worker."""
+
+    def make(self, num_envs: int) -> VectorEnv:
+        """``num_envs`` sub-environments stepping together."""
+
+
+@dataclass(frozen=True)
+class RegisteredEnv:
+    """A registered environment by its Gymnasium id (or drrl alias)."""
+
+    env_id: str
+
+    def make(self, num_envs: int) -> VectorEnv:
+        return make_batch_env(self.env_id, num_envs)
 
 
 def resolve_env_id(name: str) -> str:
     """The Gymnasium id for ``name`` (an alias such as ``cartpole``, or any registered id)."""
-    env_id = ENV_ALIASES.get(name, name)
-    if env_id not in gymnasium.registry:
-        aliases = ", ".join(f"{alias} ({target})" for alias, target in ENV_ALIASES.items())
-        known = ", ".join(sorted(gymnasium.registry))
-        raise ValueError(f"unknown environment {name!r}; use an alias: {aliases}, or a registered Gymnasium id: {known}")
-    return env_id
+    return lookup(name).env_id
 
 
 def make_batch_env(name: str, num_envs: int) -> VectorEnv:

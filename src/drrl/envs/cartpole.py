@@ -215,7 +215,7 @@ class SwingUpTask:
     slope to climb. The cart term keeps the cart near the centre. Leaving the track costs 1 per remaining step,
     more than any step on the track, so that ending the episode never pays (as 5.8's −2·(T − t) does).
     Horizon: T = 250 steps (5 s at dt = 0.02): time to swing up (about 1–2 s with ±50 N) and to show the pole held.
-    Solved (:func:`drrl.envs.solved.swing_up_verdict`): in 50 of 50 evaluation episodes the cart stays on the
+    Solved (:func:`swing_up_verdict`): in 50 of 50 evaluation episodes the cart stays on the
     track and the return is at least 160 (of at most 250). Hanging still earns about 0 and a pole that keeps
     turning over earns about half a point a step (≈ 125), so ≥ 160 needs the pole near the top most of the time.
     """
@@ -493,3 +493,69 @@ def render_frame(state: np.ndarray, half_length: float = 0.5, width: int = 600, 
     for name, mask in masks.items():  # later shapes are drawn over earlier ones
         frame[np.broadcast_to(mask, (height, width))] = _COLOURS[name]
     return frame
+
+
+# ------------------------------------------------------------------------------------ what drrl knows of them
+
+NEAR_OPTIMAL_RETURN = -50.0  # an LQR controller scores about −41
+
+
+def balance_verdict(episode_returns, terminated) -> dict[str, bool]:
+    """balanced: no evaluation episode left the bounds in its 200 steps; near-optimal: balanced and mean ≥ −50."""
+    balanced = not bool(terminated.any())
+    return {"balanced": balanced,
+            "near_optimal": balanced and float(episode_returns.mean()) >= NEAR_OPTIMAL_RETURN}
+
+
+def explain_balance(episode_returns, terminated) -> str:
+    kept = int((~terminated).sum())
+    return (f"({kept}/{terminated.numel()} episodes kept the pole up for all {BalanceTask.horizon} steps; "
+            f"near-optimal needs a mean return ≥ {NEAR_OPTIMAL_RETURN:g})")
+
+
+def swing_up_verdict(episode_returns, terminated) -> dict[str, bool]:
+    """solved: in every evaluation episode the cart stayed on the track and the return reached the threshold."""
+    return {"solved": not bool(terminated.any()) and bool((episode_returns >= SWING_UP_SOLVED_RETURN).all())}
+
+
+def explain_swing_up(episode_returns, terminated) -> str:
+    high = int(((episode_returns >= SWING_UP_SOLVED_RETURN) & ~terminated).sum())
+    return (f"({high}/{terminated.numel()} episodes kept the cart on the track and returned ≥ "
+            f"{SWING_UP_SOLVED_RETURN:g} of at most {SwingUpTask.horizon}; solved needs all of them)")
+
+
+def balance_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The thesis's reward 5.8 on observations (s, ṡ, θ, θ̇), or (s, θ) when partially observed: 5.8 reads only s
+    and θ. Imagined episodes use it on predicted observations."""
+    states = np.zeros((len(observations), 4))
+    states[:, 0::2] = observations[:, [0, -2 if observations.shape[1] == 4 else 1]]
+    return BalanceTask().reward(states, steps)
+
+
+def swing_up_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The swing-up task's reward on observations (s, ṡ, sin θ, cos θ, θ̇)."""
+    s, s_dot, sin, cos, theta_dot = observations.astype(np.float64).T
+    return SwingUpTask().reward(np.stack([s, s_dot, np.arctan2(sin, cos), theta_dot], 1), steps)
+
+
+# benchmarks/partially_observed.py: a memory is needed, and a small σ with ranks keeps it stable
+PARTIALLY_OBSERVED_SETTINGS = {"policy": "rnn:4", "popsize": 16, "sigma_init": 0.2, "sigma_lr": 0.05,
+                               "fitness_shaping": "centered_ranks", "budget": 2000}
+
+
+def _register() -> None:
+    """drrl's entries for the three cart-poles (the swing-up's model-based settings are
+    configs/cartpole-swingup-model-based.toml)."""
+    from drrl.envs.registry import EnvEntry, register
+
+    balance = {"verdict": balance_verdict, "explain": explain_balance, "reward": balance_reward}
+    for entry, task in ((EnvEntry("drrl/CartPole-v0", "cartpole", **balance), None),
+                        (EnvEntry("drrl/CartPolePO-v0", "cartpole-po", **balance,  # only (s, θ) observed
+                                  suggested=PARTIALLY_OBSERVED_SETTINGS), PartiallyObservedTask()),
+                        (EnvEntry("drrl/CartPoleSwingUp-v0", "cartpole-swingup", swing_up_verdict, explain_swing_up,
+                                  swing_up_reward), SwingUpTask())):
+        register(entry, "drrl.envs.cartpole:CartPoleEnv", "drrl.envs.cartpole:CartPoleVectorEnv",
+                 {} if task is None else {"task": task})
+
+
+_register()

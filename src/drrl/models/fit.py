@@ -24,7 +24,7 @@ import torch
 
 from drrl.models.data import EpisodeBuffer
 from drrl.models.recurrent import WorldModel, window_losses
-from drrl.search.optimizers import AdamLambda, NesterovAG
+from drrl.models.optimizers import AdamLambda, NesterovAG
 
 MODEL_OPTIMIZERS = ("adam_lambda", "nag", "adam", "sgd")
 

@@ -4,7 +4,7 @@ Every sub-environment starts from a real start observation drawn from the buffer
 drawn for that episode, and then lives in the model: each step feeds the current (predicted) observation and the
 policy's action to the model, which is dynamical consistency (3.3.3) at imagination time. Rewards and ends come
 either from the task's reward in closed form applied to the predicted observations (``known_reward``, e.g. the
-thesis's 5.8) or from the model's reward and end heads. Nothing here touches the real environment: imagined
+thesis's 5.8, from drrl's environment registry) or from the model's reward and end heads. Nothing here touches the real environment: imagined
 steps cost no real samples, and the training loop counts them apart.
 
 Episode seeds (``reset(seed=[...])``, one per sub-environment) fix each episode's start and member, so candidates
@@ -14,6 +14,7 @@ of one PGPE generation are compared on the same imagined starts, as they are on 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -22,29 +23,40 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from drrl.envs.cartpole import BalanceTask, SwingUpTask
 from drrl.models.recurrent import WorldModel
 
+# (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,)): a task's reward in closed form,
+# as drrl's environment registry holds it (drrl.envs.registry.EnvEntry.reward)
 RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
-def balance_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The thesis's reward 5.8 on predicted observations (s, ṡ, θ, θ̇), or (s, θ) when partially observed: 5.8
-    reads only s and θ."""
-    states = np.zeros((len(observations), 4))
-    states[:, 0::2] = observations[:, [0, -2 if observations.shape[1] == 4 else 1]]
-    return BalanceTask().reward(states, steps)
+@dataclass(frozen=True)
+class ImaginedWorld:
+    """What an :class:`ImaginedEnv` is made of, small enough to send to another process: the model's settings and
+    weights, the real start observations and the task's horizon and reward. ``make`` builds the env (an
+    ``EnvSource`` of drrl.envs.batch), so that rollout workers can step imagined episodes as they step real ones."""
 
+    model_settings: dict
+    model_state: dict[str, torch.Tensor]
+    start_observations: np.ndarray
+    action_space: spaces.Space
+    horizon: int
+    known_reward: RewardFunction | None = None
+    disagreement_penalty: float = 0.0
 
-def swing_up_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The swing-up task's reward on predicted observations (s, ṡ, sin θ, cos θ, θ̇)."""
-    s, s_dot, sin, cos, theta_dot = observations.astype(np.float64).T
-    return SwingUpTask().reward(np.stack([s, s_dot, np.arctan2(sin, cos), theta_dot], 1), steps)
+    @classmethod
+    def of(cls, model: WorldModel, start_observations: np.ndarray, action_space: spaces.Space, horizon: int,
+           known_reward: RewardFunction | None = None, disagreement_penalty: float = 0.0) -> ImaginedWorld:
+        state = {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
+        return cls(model.settings(), state, np.asarray(start_observations, dtype=np.float32), action_space, horizon,
+                   known_reward, disagreement_penalty)
 
-
-# Tasks whose reward and end are known in closed form of (next observation, 1-based step): drrl's cart-poles.
-KNOWN_REWARDS: dict[str, RewardFunction] = {"drrl/CartPole-v0": balance_reward, "drrl/CartPolePO-v0": balance_reward,
-                                            "drrl/CartPoleSwingUp-v0": swing_up_reward}
+    def make(self, num_envs: int) -> ImaginedEnv:
+        with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace
+            model = WorldModel(**self.model_settings)
+        model.load_state_dict(self.model_state)
+        return ImaginedEnv(model, self.start_observations, num_envs, self.action_space, self.horizon,
+                           self.known_reward, self.disagreement_penalty)
 
 
 class ImaginedEnv(VectorEnv):

@@ -110,6 +110,12 @@ class WorldModel(nn.Module):
     def __len__(self) -> int:
         return self.members
 
+    def settings(self) -> dict:
+        """The constructor's arguments: ``WorldModel(**model.settings())`` builds a model of the same shape."""
+        return {"observation_size": self.observation_size, "action_size": self.action_size,
+                "hidden": self.hidden, "kind": self.kind, "future_inputs": self.future_inputs,
+                "members": self.members}
+
     @property
     def device(self) -> torch.device:
         return self.readout_weight.device

@@ -2,7 +2,9 @@
 
 A backend evaluates all P candidates of a generation for E episodes each and returns one :class:`Evaluation`.
 Episode seeds come from the seed it is given (the run seed and the generation), never from where a candidate
-ran, so every backend returns the same numbers bit for bit.
+ran, so every backend returns the same numbers bit for bit. The workload names its environment by an
+``EnvSource`` (a registered id, or a learned model's weights and settings) that every worker rebuilds, and
+:meth:`Backend.use` points a backend at another workload, as the model-based loop does after each fit.
 """
 
 from __future__ import annotations
@@ -12,21 +14,25 @@ from typing import Protocol
 
 import torch
 
+from drrl.envs.batch import EnvSource, RegisteredEnv
 from drrl.policies.base import Policy
 from drrl.rollout.evaluate import Evaluation
-
-BACKENDS = ("local", "ray")
 
 
 @dataclass(frozen=True)
 class Workload:
-    """``popsize`` candidates of ``policy``, ``episodes`` episodes each, on env ``env_id`` cut at ``max_steps``."""
+    """``popsize`` candidates of ``policy``, ``episodes`` episodes each, on ``env`` (a source, or a registered id)
+    cut at ``max_steps``."""
 
     policy: Policy
-    env_id: str
+    env: EnvSource | str
     popsize: int
     episodes: int
     max_steps: int | None = None
+
+    def __post_init__(self):
+        if isinstance(self.env, str):
+            object.__setattr__(self, "env", RegisteredEnv(self.env))
 
 
 class Backend(Protocol):
@@ -35,25 +41,11 @@ class Backend(Protocol):
     def evaluate(self, params: torch.Tensor, seed: int) -> Evaluation:
         """Each of the P candidates ``params`` (P, n) over the workload's episodes, starts drawn from ``seed``."""
 
+    def use(self, workload: Workload) -> None:
+        """Evaluate ``workload`` from now on (same popsize and episodes, another env or policy)."""
+
     def close(self) -> None:
         """Release envs and workers."""
-
-
-def make_backend(name: str, workload: Workload, address: str | None = None, workers: int | None = None) -> Backend:
-    """The ``local`` backend (this process) or the ``ray`` one (actors on a Ray cluster at ``address``)."""
-    if name == "local":
-        if address is not None or workers is not None:
-            raise ValueError("--address and --workers are for --backend ray")
-        from drrl.rollout.local import LocalBackend
-
-        return LocalBackend(workload)
-    if name == "ray":
-        try:
-            from drrl.rollout.ray import RayBackend
-        except ImportError as error:
-            raise ValueError(str(error)) from None
-        return RayBackend(workload, address=address, workers=workers)
-    raise ValueError(f"unknown backend {name!r}; choose one of: {', '.join(BACKENDS)}")
 
 
 def chunk_bounds(popsize: int, chunks: int) -> list[tuple[int, int]]:

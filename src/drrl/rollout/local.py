@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import torch
 
-from drrl.envs.batch import make_batch_env
 from drrl.rollout.backend import Workload
 from drrl.rollout.evaluate import Evaluation, evaluate
 from drrl.rollout.memory import retain_freed_memory
@@ -19,7 +18,12 @@ class LocalBackend:
     def __init__(self, workload: Workload):
         retain_freed_memory()
         self.workload = workload
-        self.env = make_batch_env(workload.env_id, workload.popsize * workload.episodes)
+        self.env = workload.env.make(workload.popsize * workload.episodes)
+
+    def use(self, workload: Workload) -> None:
+        env = workload.env.make(workload.popsize * workload.episodes)
+        self.env.close()
+        self.workload, self.env = workload, env
 
     def evaluate(self, params: torch.Tensor, seed: int) -> Evaluation:
         work = self.workload

@@ -17,7 +17,6 @@ import warnings
 import numpy as np
 import torch
 
-from drrl.envs.batch import make_batch_env
 from drrl.rollout.backend import Workload, chunk_bounds
 from drrl.rollout.evaluate import Evaluation, evaluate
 from drrl.rollout.memory import retain_freed_memory
@@ -45,8 +44,14 @@ class RolloutWorker:
 
     def _env(self, candidates: int):
         if candidates not in self.envs:
-            self.envs[candidates] = make_batch_env(self.workload.env_id, candidates * self.workload.episodes)
+            self.envs[candidates] = self.workload.env.make(candidates * self.workload.episodes)
         return self.envs[candidates]
+
+    def use(self, workload: Workload, candidates: int) -> None:
+        for env in self.envs.values():
+            env.close()
+        self.workload, self.envs = workload, {}
+        self._env(candidates)
 
     def evaluate(self, params: np.ndarray, seed: int) -> Evaluation:
         work = self.workload
@@ -121,6 +126,13 @@ class RayBackend:
                 ray.kill(dead)
                 start, stop = self.chunks[slot]
                 self.workers[slot] = RolloutWorker.remote(self.workload, stop - start)
+
+    def use(self, workload: Workload) -> None:
+        if (workload.popsize, workload.episodes) != (self.workload.popsize, self.workload.episodes):
+            raise ValueError("a Ray backend keeps its popsize and episodes; make a new one for others")
+        self.workload = workload
+        shared = ray.put(workload)  # sent once, read by every worker
+        ray.get([worker.use.remote(shared, stop - start) for worker, (start, stop) in zip(self.workers, self.chunks)])
 
     def pids(self) -> list[int]:
         """The process ids of the workers (for tests that kill one)."""

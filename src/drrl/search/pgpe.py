@@ -40,6 +40,7 @@ from numbers import Integral, Real
 
 import torch
 
+from drrl.search.base import Search
 from drrl.search.optimizers import OPTIMIZERS, make_optimizer
 from drrl.search.shaping import FITNESS_SHAPINGS, shape_fitness
 
@@ -48,8 +49,8 @@ __all__ = ["FITNESS_SHAPINGS", "OPTIMIZERS", "PGPE", "SAMPLERS", "mirror_about_m
 SAMPLERS = ("reinforce", "symmetric", "supersymmetric")
 CANDIDATES_PER_DRAW = {"reinforce": 1, "symmetric": 2, "supersymmetric": 4}  # popsize must be a multiple
 
-STATE_KEYS = {"num_params", "popsize", "sampler", "optimizer", "generation", "center", "sigma", "baseline",
-              "has_baseline", "rng_state", "optimizer_state"}  # plus "pending_noise" between an ask and its tell
+STATE_KEYS = {"sampler", "optimizer", "center", "sigma", "baseline", "has_baseline", "rng_state",
+              "optimizer_state"}  # plus "pending_noise" between an ask and its tell
 
 HALF_NORMAL_MEDIAN = 0.6744897501960817  # Φ⁻¹(3/4): the median of |ε| for ε ~ N(0, 1)
 _MIRROR_C1, _MIRROR_C2, _MIRROR_C3 = -0.06655, -0.9706, 0.124  # Sehnke 2013's fit of the mirror map
@@ -83,7 +84,7 @@ def mirror_about_median(eps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
     return torch.sign(eps) * phi * torch.exp(torch.where(a > 0, below_median, above_median))
 
 
-class PGPE:
+class PGPE(Search):
     """Ask/tell PGPE over a flat parameter vector, with state that saves and restores exactly.
 
     Args:
@@ -104,6 +105,8 @@ class PGPE:
         seed: seed of the search's own random generator.
     """
 
+    kind = "pgpe"
+
     def __init__(self, center: torch.Tensor, *, popsize: int, sampler: str = "symmetric",
                  sigma_init: float = 1.0, center_lr: float = 0.01, sigma_lr: float = 0.005,
                  optimizer: str = "sgd", optimizer_options: dict | None = None,
@@ -112,8 +115,7 @@ class PGPE:
         center = torch.as_tensor(center)
         _check_settings(center, popsize, sampler, sigma_init, center_lr, sigma_lr, optimizer, optimizer_options,
                         fitness_shaping, baseline_decay, max_sigma_change, seed)
-        self.num_params = center.numel()
-        self.popsize = int(popsize)
+        super().__init__(center.numel(), popsize)
         self.sampler = sampler
         self.optimizer = optimizer
         self.fitness_shaping = fitness_shaping
@@ -129,7 +131,6 @@ class PGPE:
         self._baseline = 0.0
         self._has_baseline = False
         self._noise: torch.Tensor | None = None  # the directions of the last ask, waiting for tell
-        self.generation = 0
 
     @property
     def center(self) -> torch.Tensor:
@@ -140,6 +141,8 @@ class PGPE:
     def sigma(self) -> torch.Tensor:
         """σ, shape (n,): a copy."""
         return self._sigma.clone()
+
+    spread = sigma
 
     # ------------------------------------------------------------------ ask
     def ask(self) -> torch.Tensor:
@@ -161,41 +164,20 @@ class PGPE:
         return torch.randn(rows, self.num_params, generator=self._generator, device=self._mu.device)
 
     # ----------------------------------------------------------------- tell
-    def tell(self, fitness: torch.Tensor) -> dict[str, float]:
-        """Update μ and σ from the fitness (popsize,) of the last ask's candidates, higher is better.
-
-        Returns the generation's metrics as floats: "mean", "best", "worst" (raw fitness), "baseline" (the b of
-        2.33 used, on shaped values when shaping is on), "sigma_mean" and "sigma_norm" (the new σ) and
-        "center_step_norm" (‖Δμ‖).
-        """
+    def _update(self, fitness: torch.Tensor) -> dict[str, float]:
+        """Update μ and σ from the checked fitness. Metrics: "baseline" (the b of 2.33 used, on shaped values when
+        shaping is on), "sigma_mean" (the new σ) and "center_step_norm" (‖Δμ‖)."""
         if self._noise is None:
             raise RuntimeError("tell() needs candidates from ask() first (each ask is told once)")
-        fitness = self._check_fitness(fitness)
-        shaped = shape_fitness(fitness, self.fitness_shaping)
+        shaped = shape_fitness(fitness.to(self._mu.device), self.fitness_shaping)
         self._update_baseline(float(shaped.mean()))  # 2.33, before the update (Algorithm 2, step 6)
         grad_mu, grad_sigma = self._gradients(shaped)
         old_mu = self._mu.detach().clone()
         self._step_center(grad_mu)
         self._step_sigma(grad_sigma)
         self._noise = None
-        self.generation += 1
-        return {"mean": float(fitness.mean()), "best": float(fitness.max()), "worst": float(fitness.min()),
-                "baseline": self._baseline, "sigma_mean": float(self._sigma.mean()),
-                "sigma_norm": float(self._sigma.norm()),
+        return {"baseline": self._baseline, "sigma_mean": float(self._sigma.mean()),
                 "center_step_norm": float((self._mu.detach() - old_mu).norm())}
-
-    def _check_fitness(self, fitness) -> torch.Tensor:
-        fitness = torch.as_tensor(fitness).detach()
-        if fitness.shape != (self.popsize,):
-            raise ValueError(f"fitness must have shape ({self.popsize},), one value per asked candidate; "
-                             f"got shape {tuple(fitness.shape)}")
-        fitness = fitness.to(device=self._mu.device, dtype=torch.float32)
-        bad = torch.nonzero(~torch.isfinite(fitness)).flatten().tolist()
-        if bad:
-            shown = ", ".join(map(str, bad[:10])) + (", ..." if len(bad) > 10 else "")
-            raise ValueError(f"fitness must be finite (after conversion to float32); candidate index(es) {shown} "
-                             f"are NaN or infinite; the search was not updated")
-        return fitness
 
     def _update_baseline(self, mean: float) -> None:
         """2.33: b ← decay · b + (1 − decay) · mean fitness; on the first tell b starts at the mean."""
@@ -230,17 +212,10 @@ class PGPE:
         self._sigma = self._sigma * ratio.clamp(1 - self.max_sigma_change, 1 + self.max_sigma_change)
 
     # ---------------------------------------------------------------- state
-    def state_dict(self) -> dict:
-        """Everything that changes during a run, as tensors and plain Python values (no None, no pickling).
-
-        Restored into a PGPE built with the same settings, the search continues bit-identically, also between
-        an ask and its tell.
-        """
+    def _state(self) -> dict:
         optimizer_state = self._optimizer.state_dict()["state"].get(0, {})
         state = {
-            "num_params": self.num_params, "popsize": self.popsize, "sampler": self.sampler,
-            "optimizer": self.optimizer, "generation": self.generation,
-            "center": self.center, "sigma": self.sigma,
+            "sampler": self.sampler, "optimizer": self.optimizer, "center": self.center, "sigma": self.sigma,
             "baseline": self._baseline, "has_baseline": self._has_baseline,
             "rng_state": self._generator.get_state(),
             "optimizer_state": {name: _copy(value) for name, value in optimizer_state.items() if value is not None},
@@ -249,12 +224,11 @@ class PGPE:
             state["pending_noise"] = self._noise.clone()
         return state
 
-    def load_state_dict(self, state: dict) -> None:
-        """Restore a :meth:`state_dict`; the PGPE must have been built with the same settings."""
+    def _load_state(self, state: dict) -> None:
         missing = sorted(STATE_KEYS - set(state))
         if missing:
             raise ValueError(f"not a PGPE state: it lacks {', '.join(missing)}")
-        for key in ("num_params", "popsize", "sampler", "optimizer"):
+        for key in ("sampler", "optimizer"):
             if state.get(key) != getattr(self, key):
                 raise ValueError(f"state is for {key}={state.get(key)!r} but this PGPE has "
                                  f"{key}={getattr(self, key)!r}; build it with the settings the state was saved with")
@@ -264,7 +238,6 @@ class PGPE:
         self._sigma = state["sigma"].to(device=device, dtype=torch.float32).clone()
         self._baseline = float(state["baseline"])
         self._has_baseline = bool(state["has_baseline"])
-        self.generation = int(state["generation"])
         self._generator.set_state(state["rng_state"].cpu().to(torch.uint8))
         optimizer_state = {0: dict(state["optimizer_state"])} if state["optimizer_state"] else {}
         self._optimizer.load_state_dict({"state": optimizer_state,

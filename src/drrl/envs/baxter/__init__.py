@@ -13,15 +13,17 @@ Importing this package registers the environments below with Gymnasium (``gymnas
 task options (``reward="dense"``, ``action_noise``, ``fixed_target``, ...) are keyword arguments of ``make``.
 """
 
-import gymnasium
+from drrl.envs.baxter.task import explain_reach, reach_verdict
+from drrl.envs.registry import EnvEntry, register
 
-ENVIRONMENTS = {
-    "drrl/BaxterReach-v0": {"arms": ("right", "left")},  # both arms, the fixed targets, reward 5.10
-    "drrl/BaxterReachDense-v0": {"arms": ("right", "left"), "reward": "dense"},
-    "drrl/BaxterReachRight-v0": {"arms": ("right",)},  # the thesis's setting: one arm, a fixed target
-    "drrl/BaxterReachRightRandom-v0": {"arms": ("right",), "targets": "random"},
+ENVIRONMENTS = {  # alias, Gymnasium id, task options, whether the verdict of reward 5.10 applies
+    "baxter-reach": ("drrl/BaxterReach-v0", {"arms": ("right", "left")}, True),  # both arms, fixed targets
+    "baxter-reach-dense": ("drrl/BaxterReachDense-v0", {"arms": ("right", "left"), "reward": "dense"}, False),
+    "baxter-reach-right": ("drrl/BaxterReachRight-v0", {"arms": ("right",)}, True),  # the thesis's setting
+    "baxter-reach-right-random": ("drrl/BaxterReachRightRandom-v0", {"arms": ("right",), "targets": "random"}, True),
 }
 
-for _env_id, _options in ENVIRONMENTS.items():
-    gymnasium.register(id=_env_id, entry_point="drrl.envs.baxter.env:BaxterReachEnv",
-                       vector_entry_point="drrl.envs.baxter.env:BaxterReachVectorEnv", kwargs=dict(_options))
+for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
+    _judged = {"verdict": reach_verdict, "explain": explain_reach} if _thesis_reward else {}
+    register(EnvEntry(_env_id, _alias, **_judged), "drrl.envs.baxter.env:BaxterReachEnv",
+             "drrl.envs.baxter.env:BaxterReachVectorEnv", _options)

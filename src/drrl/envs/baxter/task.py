@@ -198,3 +198,9 @@ def reach_verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) -> di
     fraction = float(held.double().mean())
     return {"held_95": fraction >= 0.95, "held_80": fraction >= 0.80,
             "no_failure": not bool(torch.as_tensor(terminated).any())}
+
+
+def explain_reach(episode_returns: torch.Tensor, terminated: torch.Tensor) -> str:
+    kept = int((~torch.as_tensor(terminated, dtype=torch.bool)).sum())
+    return (f"({kept}/{terminated.numel()} episodes without a failure; held: every end-point within 0.05 m of its "
+            f"target for at least half of the episode)")

@@ -1,0 +1,71 @@
+"""Everything drrl knows about an environment, in one entry per environment.
+
+An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what "solved" means) and how
+``drrl eval`` explains it, the task's reward and end in closed form of the observation when there is one (imagined
+episodes then use it instead of a learned reward), and settings that suit the task. Each environment registers its
+entry from its own module (:func:`register`), which also registers it with Gymnasium; an environment that drrl
+does not know is any registered Gymnasium id, with an empty entry.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import gymnasium
+import numpy as np
+import torch
+
+# (episode_returns (P, E), terminated (P, E)) -> {criterion: met}
+Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
+# (episode_returns (1, E), terminated (1, E)) -> one line explaining the verdict
+Explanation = Callable[[torch.Tensor, torch.Tensor], str]
+# (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,))
+RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class EnvEntry:
+    """What drrl knows of one environment; only ``env_id`` is needed."""
+
+    env_id: str
+    alias: str | None = None
+    verdict: Verdict | None = None
+    explain: Explanation | None = None
+    reward: RewardFunction | None = None
+    suggested: dict = field(default_factory=dict)  # TrainConfig settings that suit the task
+
+    def criteria(self) -> tuple[str, ...]:
+        """The names of the verdict's criteria (metrics.csv columns); none without a verdict."""
+        if self.verdict is None:
+            return ()
+        return tuple(self.verdict(torch.zeros(1, 1), torch.zeros(1, 1, dtype=torch.bool)))
+
+    def judge(self, episode_returns: torch.Tensor, terminated: torch.Tensor) -> dict[str, bool]:
+        return {} if self.verdict is None else self.verdict(episode_returns, terminated)
+
+
+ENTRIES: dict[str, EnvEntry] = {}  # by Gymnasium id
+
+
+def register(entry: EnvEntry, entry_point: str, vector_entry_point: str | None = None,
+             kwargs: dict | None = None) -> None:
+    """Register ``entry`` with drrl and its environment with Gymnasium."""
+    gymnasium.register(id=entry.env_id, entry_point=entry_point, vector_entry_point=vector_entry_point,
+                       kwargs=dict(kwargs or {}))
+    ENTRIES[entry.env_id] = entry
+
+
+def aliases() -> dict[str, str]:
+    """alias -> Gymnasium id, for drrl's own environments."""
+    return {entry.alias: env_id for env_id, entry in ENTRIES.items() if entry.alias}
+
+
+def lookup(name: str) -> EnvEntry:
+    """The entry for ``name``: an alias such as ``cartpole``, or any registered Gymnasium id."""
+    env_id = aliases().get(name, name)
+    if env_id not in gymnasium.registry:
+        known = ", ".join(f"{alias} ({target})" for alias, target in aliases().items())
+        raise ValueError(f"unknown environment {name!r}; use an alias: {known}, or a registered Gymnasium id: "
+                         f"{', '.join(sorted(gymnasium.registry))}")
+    return ENTRIES.get(env_id, EnvEntry(env_id))

@@ -1,0 +1,269 @@
+"""The one training loop, for both worlds (thesis 2.4, Algorithm 2; 2.3 for the model-based world).
+
+A search asks for candidates and is told their returns; it never knows whether they came from the real environment
+or from a learned model. :func:`run_generation` is that ask → evaluate on a backend → tell, and a :class:`World`
+says what one step of the loop does with it:
+
+* model-free (``drrl.model_free``): one generation on the real environment;
+* model-based (``drrl.model_based``): collect real episodes, fit the world model, then generations inside it.
+
+:func:`run` is the loop around any world: after each step it measures the centre policy on real episodes when due
+(counted apart, never as training), keeps the best measured centre, appends a metrics row, and hands the row and,
+when due, a checkpoint of the whole state to its subscribers (the run folder, the progress bar, TensorBoard). On
+Ctrl-C, SIGTERM or an error the last whole step's state is checkpointed, and :func:`restore` continues from it to
+exactly the metrics of an uninterrupted run (wall time aside): every random number derives from the run seed and
+the step, or lives in a saved state.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from abc import ABC, abstractmethod
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from gymnasium.vector import VectorEnv
+
+from drrl.config import TrainConfig
+from drrl.envs.registry import EnvEntry
+from drrl.policies import Policy
+from drrl.rollout import Backend, Evaluation, evaluate
+from drrl.search.base import Search
+
+TRAINING, MEASURING = 0, 1  # independent random streams for training and measuring episodes
+COUNTS = ("iteration", "generations", "real_episodes", "real_steps", "imagined_episodes", "imagined_steps",
+          "eval_episodes", "best_iteration", "best_center_criteria")
+
+
+def derive_seed(seed: int, step: int, stream: int) -> int:
+    """A seed that depends only on the run seed, the step (generation or iteration) and the stream."""
+    return int(np.random.SeedSequence([seed, step, stream]).generate_state(1)[0])
+
+
+def run_generation(search: Search, backend: Backend, seed: int) -> tuple[Evaluation, dict[str, float]]:
+    """One generation: ask the search for candidates, evaluate them on the backend, tell it their mean returns."""
+    evaluation = backend.evaluate(search.ask(), seed)
+    return evaluation, search.tell(evaluation.returns.to(torch.float32))
+
+
+@dataclass
+class Counters:
+    """What the run has spent so far. Real episodes and steps are training only; imagined ones (in a learned model)
+    and measuring ones are counted apart."""
+
+    iteration: int = 0  # steps of the loop: generations model-free, iterations model-based
+    generations: int = 0  # generations of the search, in whichever world
+    real_episodes: int = 0
+    real_steps: int = 0
+    imagined_episodes: int = 0
+    imagined_steps: int = 0
+    eval_episodes: int = 0
+    rows: list[dict] = field(default_factory=list)  # one metrics row per step
+    best_center: torch.Tensor | None = None  # the best measured centre: most verdict criteria met, then highest return
+    best_center_return: float = float("-inf")
+    best_center_criteria: int = 0  # how many of the task's verdict criteria (balanced, ...) it met
+    best_iteration: int = 0
+    wall_time: float = 0.0  # seconds since the run started, not counting the time it spent stopped
+
+
+class World(ABC):
+    """Where the search's returns come from, and what one step of the loop does."""
+
+    kind: str  # "model-free" or "model-based", as checkpoints name it
+    unit: str  # what a step is called in metrics.csv and messages: "generation" or "iteration"
+
+    @property
+    @abstractmethod
+    def iterations(self) -> int:
+        """The steps a whole run takes."""
+
+    @property
+    @abstractmethod
+    def real_budget(self) -> int:
+        """The real training episodes a whole run spends (the budget, less a remainder too small for a step)."""
+
+    @abstractmethod
+    def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
+        """Step ``iteration``: improve ``setup.search``, count what it spent in ``counters``; its metrics row."""
+
+    def measure_due(self, iteration: int) -> bool:
+        return True
+
+    def checkpoint_due(self, iteration: int) -> bool:
+        return True
+
+    def state_dict(self) -> dict:
+        """The world's own state between steps (a model, its data), as copies."""
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore :meth:`state_dict`."""
+
+    def title(self, setup: Setup) -> str:
+        return f"{setup.entry.env_id}, {setup.config.policy} policy, {setup.config.search}"
+
+    def close(self) -> None:
+        """Release what the world holds (its backend)."""
+
+
+@dataclass
+class Setup:
+    """The pieces of a run, built and checked before any work."""
+
+    config: TrainConfig
+    entry: EnvEntry  # what drrl knows of the env: its id, verdict, closed-form reward
+    policy: Policy
+    search: Search
+    world: World
+    eval_env: VectorEnv  # measures the centre policy, always here
+
+    def close(self) -> None:
+        self.world.close()
+        self.eval_env.close()
+
+
+class Subscriber:
+    """Told what the loop does (the run folder, the progress bar, TensorBoard: drrl.subscribers); each method does
+    nothing here, a subscriber overrides those it needs."""
+
+    def started(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        """Before the first step (``counters.iteration`` is 0 for a new run), with the state at the start."""
+
+    def row(self, setup: Setup, counters: Counters, row: dict) -> None:
+        """After every step, with its metrics row."""
+
+    def checkpoint(self, snapshot: dict) -> None:
+        """When a checkpoint is due, with the state after the step."""
+
+    def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        """When the run ends for any reason, with the last whole step's state."""
+
+
+def run(setup: Setup, subscribers: list[Subscriber] = (), counters: Counters | None = None) -> Counters:
+    """Step ``setup.world`` to the end of its budget; ``counters`` (from :func:`restore`) continue a run."""
+    counters = Counters() if counters is None else counters
+    snapshot = checkpoint_state(setup, counters)
+    for subscriber in subscribers:
+        subscriber.started(setup, counters, snapshot)
+    start = time.perf_counter() - counters.wall_time
+    try:
+        with _sigterm_as_interrupt():
+            for iteration in range(counters.iteration + 1, setup.world.iterations + 1):
+                row = setup.world.step(setup, counters, iteration)
+                counters.iteration = iteration
+                row.update(measure_center(setup, counters, iteration))
+                counters.wall_time = time.perf_counter() - start
+                row.update(eval_episodes=counters.eval_episodes, wall_time=round(counters.wall_time, 3))
+                counters.rows.append(row)
+                for subscriber in subscribers:
+                    subscriber.row(setup, counters, row)
+                snapshot = checkpoint_state(setup, counters)
+                if setup.world.checkpoint_due(iteration):
+                    for subscriber in subscribers:
+                        subscriber.checkpoint(snapshot)
+    finally:
+        setup.close()
+        for subscriber in subscribers:  # the last whole step's state, whatever stopped the run
+            subscriber.ended(setup, counters, snapshot)
+    return counters
+
+
+def measure(policy: Policy, center: torch.Tensor, env: VectorEnv, max_steps: int | None, seed: int) -> Evaluation:
+    """The centre policy μ over ``env.num_envs`` fresh episodes."""
+    return evaluate(policy, center[None], env, env.num_envs, seed=seed, max_steps=max_steps)
+
+
+def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
+    """When due, the centre's measured return and the task's verdict on it, and the best centre updated; else NaN
+    in the same columns (metrics.csv keeps fixed columns)."""
+    if not setup.world.measure_due(iteration):
+        return dict.fromkeys(("center_return", *setup.entry.criteria()), float("nan"))
+    center = setup.search.center
+    measured = measure(setup.policy, center, setup.eval_env, setup.config.max_steps,
+                       derive_seed(setup.config.seed, iteration, MEASURING))
+    counters.eval_episodes += measured.episodes
+    center_return = float(measured.returns[0])
+    met = setup.entry.judge(measured.episode_returns, measured.terminated)
+    if better_center(met, center_return, counters.best_center_criteria, counters.best_center_return):
+        counters.best_center, counters.best_center_return = center, center_return
+        counters.best_center_criteria, counters.best_iteration = sum(met.values()), iteration
+    return {"center_return": center_return, **{name: int(ok) for name, ok in met.items()}}
+
+
+def better_center(met: dict[str, bool], center_return: float, best_criteria: int, best_return: float) -> bool:
+    """Whether a measured centre beats the best one so far: more of the task's verdict criteria met (``met``),
+    then a higher return. ``drrl eval`` runs the best one."""
+    return (sum(met.values()), center_return) > (best_criteria, best_return)
+
+
+@contextmanager
+def _sigterm_as_interrupt():
+    """While training, SIGTERM stops the run as Ctrl-C does (KeyboardInterrupt), so that both save a checkpoint."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+# ------------------------------------------------------------------------------------------------ checkpoints
+
+
+def checkpoint_state(setup: Setup, counters: Counters) -> dict:
+    """The run's state between steps, for ``RunFolder.save_checkpoint`` and :func:`restore`."""
+    search = setup.search
+    best = search.center if counters.best_center is None else counters.best_center
+    return {"kind": setup.world.kind, "unit": setup.world.unit, "search": search.state_dict(),
+            "center": search.center.detach().cpu(), "env_id": setup.entry.env_id, "best_center": best.detach().cpu(),
+            "best_center_return": counters.best_center_return, "num_params": setup.policy.num_params,
+            "wall_time": counters.wall_time, **{key: getattr(counters, key) for key in COUNTS},
+            "world": setup.world.state_dict()}
+
+
+def check_checkpoint(checkpoint: dict, kind: str) -> None:
+    """Refuse a checkpoint this version cannot resume as a ``kind`` run, saying what is wrong with it."""
+    if checkpoint.get("kind") != kind:
+        raise ValueError(f"checkpoint is of kind {checkpoint.get('kind')!r} but the run's config is {kind!r}")
+    missing = [key for key in ("search", "center", "best_center", "best_center_return", "env_id", "num_params",
+                               "wall_time", "world", *COUNTS) if key not in checkpoint]
+    if missing:
+        raise ValueError(f"checkpoint lacks {', '.join(missing)}")
+    for key in COUNTS:
+        value = checkpoint[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ValueError(f"checkpoint's {key} is {value!r}; it must be a whole number >= 0")
+    for key in ("center", "best_center"):
+        value = checkpoint[key]
+        if not isinstance(value, torch.Tensor) or value.dim() != 1 or not bool(torch.isfinite(value).all()):
+            raise ValueError(f"checkpoint's {key} must be a 1-D tensor of finite numbers")
+
+
+def restore(setup: Setup, checkpoint: dict) -> Counters:
+    """Load a checkpoint into ``setup``'s search and world; its counters (metrics rows not included)."""
+    check_checkpoint(checkpoint, setup.world.kind)
+    for key, expected in (("env_id", setup.entry.env_id), ("num_params", setup.policy.num_params)):
+        if checkpoint[key] != expected:
+            raise ValueError(f"checkpoint is for {key} {checkpoint[key]!r} but the run's config gives {expected!r}")
+    try:
+        setup.search.load_state_dict(checkpoint["search"])
+        setup.world.load_state_dict(checkpoint["world"])
+    except (KeyError, TypeError, AttributeError, RuntimeError) as error:
+        raise ValueError(f"checkpoint's state does not fit the run's config: {error}") from None
+    if setup.search.generation != checkpoint["generations"]:
+        raise ValueError(f"checkpoint's search state is at generation {setup.search.generation}, its counters at "
+                         f"{checkpoint['generations']}")
+    counters = Counters(**{key: checkpoint[key] for key in COUNTS}, wall_time=float(checkpoint["wall_time"]),
+                        best_center_return=float(checkpoint["best_center_return"]))
+    counters.best_center = checkpoint["best_center"] if counters.best_iteration else None
+    return counters

@@ -1,0 +1,53 @@
+"""Model-free training: the search on the real environment (thesis 2.4, Algorithm 2).
+
+One step of the loop (:func:`drrl.loop.run`) is one generation: ask for P candidates, run them for E real
+episodes each in one batched rollout on the backend, tell the search their mean returns. The loop then measures
+the centre policy μ every ``eval_every`` generations on separate episodes, counted apart. Checkpoints are taken
+every ``checkpoint_every`` generations; episode seeds derive from the run seed and the generation, so no
+environment state needs saving.
+"""
+
+from __future__ import annotations
+
+from drrl.config import TrainConfig
+from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
+from drrl.rollout import Backend, NonFiniteOutput
+
+
+class ModelFree(World):
+    """Every generation on the real environment, through ``backend`` (here, or on a Ray cluster)."""
+
+    kind, unit = "model-free", "generation"
+
+    def __init__(self, config: TrainConfig, backend: Backend):
+        self.config, self.backend = config, backend
+
+    @property
+    def iterations(self) -> int:
+        return self.config.generations
+
+    @property
+    def real_budget(self) -> int:
+        return self.config.generations * self.config.episodes_per_generation
+
+    def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
+        try:
+            result, metrics = run_generation(setup.search, self.backend,
+                                             derive_seed(self.config.seed, iteration, TRAINING))
+        except NonFiniteOutput as error:
+            raise NonFiniteOutput(f"generation {iteration}: {error}; stopped before updating the search") from None
+        counters.generations += 1
+        counters.real_episodes += result.episodes
+        counters.real_steps += result.steps
+        return {"generation": iteration, "real_episodes": counters.real_episodes, "real_steps": counters.real_steps,
+                "mean_return": float(result.returns.mean()), "best_return": float(result.returns.max()),
+                "sigma_norm": metrics["sigma_norm"]}
+
+    def measure_due(self, iteration: int) -> bool:
+        return iteration % self.config.eval_every == 0 or iteration == self.iterations
+
+    def checkpoint_due(self, iteration: int) -> bool:
+        return iteration % self.config.checkpoint_every == 0
+
+    def close(self) -> None:
+        self.backend.close()

@@ -1,0 +1,91 @@
+"""What the training loop tells the outside: subscribers of :func:`drrl.loop.run`, attached, not wired in.
+
+* :class:`RunFolderWriter`: config.json, a metrics.csv row per step, checkpoints, the learning curve at the end;
+* :class:`ProgressBar`: real episodes spent, with the step's returns (tqdm);
+* :class:`TensorBoardLogger`: every metric against real training episodes (``drrl[tensorboard]``).
+
+A subscriber overrides any of :class:`drrl.loop.Subscriber`'s ``started``, ``row``, ``checkpoint`` and ``ended``;
+a benchmark attaches its own probe the same way.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from tqdm import tqdm
+
+from drrl.loop import Counters, Setup, Subscriber
+from drrl.runs import RunFolder
+
+INSTALL_TENSORBOARD = '--tensorboard needs TensorBoard, which is not installed: pip install "drrl[tensorboard]"'
+
+
+class RunFolderWriter(Subscriber):
+    """Writes the run folder: the config and a first checkpoint at the start (a run killed before its first
+    checkpoint can still be resumed), a metrics row per step, every checkpoint, and at the end the last whole
+    step's checkpoint and the learning curve."""
+
+    def __init__(self, folder: RunFolder):
+        self.folder = folder
+
+    def started(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        if counters.iteration == 0:
+            self.folder.write_config(setup.config)
+            self.folder.save_checkpoint(snapshot)
+
+    def row(self, setup: Setup, counters: Counters, row: dict) -> None:
+        self.folder.append_metrics(row)
+
+    def checkpoint(self, snapshot: dict) -> None:
+        self.folder.save_checkpoint(snapshot)
+
+    def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        self.folder.save_checkpoint(snapshot)
+        if counters.iteration:
+            self.folder.plot_learning_curve(setup.world.title(setup))
+
+
+class ProgressBar(Subscriber):
+    """Real training episodes spent out of the budget, and the last step's returns."""
+
+    def __init__(self, description: str = "real episodes"):
+        self.description = description
+        self.bar = None
+
+    def started(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        self.bar = tqdm(total=setup.world.real_budget, unit="ep", initial=counters.real_episodes,
+                        desc=self.description, dynamic_ncols=True)
+
+    def row(self, setup: Setup, counters: Counters, row: dict) -> None:
+        self.bar.update(counters.real_episodes - self.bar.n)
+        shown = {"return mean": row["mean_return"], "best": row.get("best_return"), "centre": row["center_return"],
+                 "model": row.get("imagined_center_return")}
+        self.bar.set_postfix_str(f"{setup.world.unit} {counters.iteration} | " + " ".join(
+            f"{name} {value:.1f}" for name, value in shown.items() if value is not None and not math.isnan(value)),
+            refresh=False)
+
+    def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+class TensorBoardLogger(Subscriber):
+    """Every numeric metric of a row as a TensorBoard scalar, against real training episodes (the thesis's axis),
+    into ``log_dir`` (``tensorboard --logdir RUN``)."""
+
+    def __init__(self, log_dir: Path | str):
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError:
+            raise ImportError(INSTALL_TENSORBOARD) from None
+        self.writer = SummaryWriter(str(log_dir))
+
+    def row(self, setup: Setup, counters: Counters, row: dict) -> None:
+        for name, value in row.items():
+            if isinstance(value, (int, float)) and not math.isnan(value) and name != "real_episodes":
+                self.writer.add_scalar(name, value, global_step=counters.real_episodes)
+        self.writer.flush()
+
+    def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        self.writer.close()

@@ -1,0 +1,172 @@
+"""The one loop in both worlds: model-based runs resume exactly and run on Ray as they do locally; subscribers;
+the searches behind one interface; the layers import downward only."""
+
+import ast
+import csv
+from pathlib import Path
+
+import pytest
+import torch
+
+from drrl.config import TrainConfig
+from drrl.loop import Subscriber, run
+from drrl.runs import RunFolder
+from drrl.train import prepare, resume, subscribers, train
+
+SOURCE = Path(__file__).parents[1] / "src" / "drrl"
+TINY_MODEL = {"hidden": [8], "unfold": 2, "overshoot": 4, "generations": 3, "fit_updates": 40, "refit_updates": 20,
+              "ensemble_size": 2}
+MODEL_BASED = TrainConfig(model_based=TINY_MODEL, popsize=6, episodes_per_candidate=2, budget=8, eval_episodes=4,
+                          seed=3)
+TIMING = {"wall_time", "fit_time", "search_time"}
+
+
+def metrics(out: Path) -> list[dict]:
+    with (out / "metrics.csv").open(newline="") as handle:
+        return [{key: value for key, value in row.items() if key not in TIMING} for row in csv.DictReader(handle)]
+
+
+def tensors(state) -> dict:
+    """Every tensor of a nested checkpoint state, by its path."""
+    found = {}
+
+    def walk(value, path):
+        if isinstance(value, torch.Tensor):
+            found[path] = value
+        elif isinstance(value, dict):
+            for key, item in value.items():
+                walk(item, f"{path}/{key}")
+        elif isinstance(value, list):
+            for index, item in enumerate(value):
+                walk(item, f"{path}/{index}")
+
+    walk(state, "")
+    return found
+
+
+class StopAfter(Subscriber):
+    """Ctrl-C just after the checkpoint of step ``iteration`` is written, as a person might press it."""
+
+    def __init__(self, iteration: int):
+        self.iteration = iteration
+
+    def checkpoint(self, snapshot):
+        if snapshot["iteration"] == self.iteration:
+            raise KeyboardInterrupt
+
+
+def test_model_based_defaults_merge_in_the_config_alone():
+    config = TrainConfig(model_based={})
+    assert (config.popsize, config.episodes_per_candidate, config.budget) == (20, 10, 20)
+    assert TrainConfig(model_based={}, popsize=4).popsize == 4  # given settings win
+    assert TrainConfig().popsize == 8  # model-free keeps its own
+
+
+@pytest.mark.parametrize("stop_after", [1, 2])
+def test_a_stopped_model_based_run_resumes_to_the_uninterrupted_metrics_and_checkpoint(tmp_path, one_thread,
+                                                                                        stop_after):
+    whole, stopped = tmp_path / "whole", tmp_path / "stopped"
+    counters = train(MODEL_BASED, whole)
+    assert counters.iteration == 4 and counters.real_episodes == 8 and counters.imagined_episodes > 0
+    setup = prepare(MODEL_BASED)
+    with pytest.raises(KeyboardInterrupt):
+        run(setup, [*subscribers(RunFolder.create(stopped), progress=False), StopAfter(stop_after)])
+    checkpoint = RunFolder(stopped).load_checkpoint()
+    assert checkpoint["iteration"] == stop_after and checkpoint["world"]["buffer"]  # the model's data are kept
+    resumed = resume(stopped)
+    assert resumed.iteration == 4 and resumed.real_episodes == 8 and resumed.real_steps == counters.real_steps
+    assert metrics(stopped) == metrics(whole)
+    final, expected = tensors(RunFolder(stopped).load_checkpoint()), tensors(RunFolder(whole).load_checkpoint())
+    assert final.keys() == expected.keys() and all(torch.equal(final[key], expected[key]) for key in expected)
+
+
+def test_model_based_on_ray_equals_local_bit_for_bit(tmp_path, one_thread):
+    pytest.importorskip("ray")
+    config = MODEL_BASED.model_copy(update={"budget": 6})
+    train(config, tmp_path / "local")
+    train(config, tmp_path / "ray", backend="ray", workers=2)
+    assert metrics(tmp_path / "ray") == metrics(tmp_path / "local")
+    assert len(metrics(tmp_path / "local")) == 3
+
+
+def test_model_free_cmaes_improves_the_cartpole_and_resumes_exactly(tmp_path):
+    config = TrainConfig(search="cmaes", budget=160, eval_every=4, seed=1)
+    whole = train(config, tmp_path / "whole")
+    measured = [row["center_return"] for row in whole.rows if row["center_return"] == row["center_return"]]
+    assert measured[-1] > measured[0] + 50  # the thesis cart-pole's centre gets much better within 20 generations
+    setup = prepare(config)
+    with pytest.raises(KeyboardInterrupt):
+        run(setup, [*subscribers(RunFolder.create(tmp_path / "stopped"), progress=False), StopAfter(10)])
+    resume(tmp_path / "stopped")
+    assert metrics(tmp_path / "stopped") == metrics(tmp_path / "whole")
+
+
+def test_tensorboard_logs_every_metric_against_real_episodes(tmp_path):
+    pytest.importorskip("tensorboard")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    config = TrainConfig(budget=24)
+    run(prepare(config), subscribers(RunFolder.create(tmp_path / "run"), progress=False, tensorboard=True))
+    events = EventAccumulator(str(tmp_path / "run" / "tensorboard"))
+    events.Reload()
+    assert {"center_return", "mean_return", "sigma_norm"} <= set(events.Tags()["scalars"])
+    assert [event.step for event in events.Scalars("mean_return")] == [8, 16, 24]
+
+
+# ------------------------------------------------------------------------------------------------ the layers
+
+LAYER_RULES = {  # a module (or package) -> drrl modules it must not import, directly or lazily
+    "models": ("drrl.envs", "drrl.search", "drrl.rollout", "drrl.loop", "drrl.train"),
+    "model_based.py": ("drrl.model_free", "drrl.train", "drrl.cli"),
+    "model_free.py": ("drrl.model_based", "drrl.train", "drrl.cli"),
+    "loop.py": ("drrl.model_free", "drrl.model_based", "drrl.train", "drrl.cli", "drrl.runs"),
+    "search": ("drrl.envs", "drrl.models", "drrl.rollout", "drrl.policies"),
+    "envs": ("drrl.models", "drrl.search", "drrl.rollout", "drrl.policies", "drrl.loop"),
+    "rollout": ("drrl.models", "drrl.search", "drrl.loop", "drrl.train"),
+}
+
+
+def drrl_imports(file: Path) -> set[str]:
+    """The drrl modules ``file`` imports anywhere in it."""
+    found = set()
+    for node in ast.walk(ast.parse(file.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("drrl"):
+            found.add(node.module)
+        elif isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names if alias.name.startswith("drrl"))
+    return found
+
+
+def module_name(file: Path) -> str:
+    parts = file.relative_to(SOURCE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+@pytest.mark.parametrize("where", sorted(LAYER_RULES))
+def test_layers_import_downward_only(where):
+    files = [SOURCE / where] if where.endswith(".py") else sorted((SOURCE / where).rglob("*.py"))
+    for file in files:
+        bad = [name for name in drrl_imports(file) if name.startswith(LAYER_RULES[where])]
+        assert not bad, f"{file.relative_to(SOURCE)} imports {bad}"
+
+
+def test_no_import_circle():
+    modules = {module_name(file): file for file in SOURCE.rglob("*.py")}
+    graph = {name: {imported for imported in drrl_imports(file) if imported in modules and imported != name
+                    and not name.startswith(imported + ".")}  # a module's own package is loaded first anyway
+             for name, file in modules.items()}
+    done, path = set(), []
+
+    def visit(name):
+        if name in path:
+            raise AssertionError(f"import circle: {' -> '.join(path[path.index(name):] + [name])}")
+        if name in done:
+            return
+        path.append(name)
+        for imported in graph[name]:
+            visit(imported)
+        path.pop()
+        done.add(name)
+
+    for name in graph:
+        visit(name)
