@@ -1,10 +1,12 @@
 """Real training episodes until the centre policy is balanced / near-optimal on the thesis cart-pole (5.1).
 
-For each sampler and seed, `drrl train`'s defaults (bias-free linear policy) spend a budget of real episodes; the
+For each method and seed, `drrl train`'s defaults (bias-free linear policy) spend a budget of real episodes; the
 centre policy is measured on 50 fresh episodes after every generation (counted apart, never as training).
-Prints a Markdown table of medians over seeds.
+Prints a Markdown table of medians over seeds. A method is a PGPE sampler or another search (cmaes, sep-cmaes),
+which keeps the same popsize, σ₀ and budget.
 
     python benchmarks/sample_efficiency.py --seeds 10 --workers 2
+    python benchmarks/sample_efficiency.py --seeds 10 --workers 2 --samplers symmetric,cmaes,sep-cmaes
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from multiprocessing import Pool
 import torch
 
 from drrl.config import TrainConfig
+from drrl.search import SEARCHES
 from drrl.train import train
 
 CRITERIA = ("balanced", "near_optimal")
@@ -33,9 +36,10 @@ def median_or_miss(values: list[int | None]) -> str:
 
 
 def episodes_to_criteria(job: tuple[str, int, int]) -> list[int | None]:
-    sampler, seed, budget = job
+    method, seed, budget = job
     torch.set_num_threads(1)
-    rows = train(TrainConfig(sampler=sampler, seed=seed, budget=budget), progress=False).rows
+    choice = {"search": method} if method in SEARCHES else {"sampler": method}
+    rows = train(TrainConfig(**choice, seed=seed, budget=budget), progress=False).rows
     return [first_reached(rows, criterion) for criterion in CRITERIA]
 
 
@@ -47,7 +51,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
     print(f"budget {args.budget} real episodes, seeds 0..{args.seeds - 1}; defaults: {TrainConfig().model_dump()}\n")
-    print("| sampler | median episodes to balanced | median episodes to near-optimal | seeds balanced | "
+    print("| method | median episodes to balanced | median episodes to near-optimal | seeds balanced | "
           "seeds near-optimal | per seed (balanced / near-optimal) |")
     print("| --- | --- | --- | --- | --- | --- |")
     with Pool(args.workers) as pool:

@@ -152,3 +152,30 @@ def test_the_drrl_command_is_installed():
     drrl = Path(sys.executable).with_name("drrl")
     result = subprocess.run([drrl, "train", "--help"], capture_output=True, text=True, check=True)
     assert "--budget" in result.stdout and "--sampler" in result.stdout
+
+
+def test_eval_explains_each_tasks_own_verdict(tmp_path):
+    result, out = train(tmp_path, "cartpole-swingup", "--budget", "16", "--eval-episodes", "4", "--quiet")
+    assert result.exit_code == 0, result.output
+    evaluated = CliRunner().invoke(main, ["eval", str(out), "--episodes", "4"])
+    assert evaluated.exit_code == 0, evaluated.output
+    assert "solved:" in evaluated.output and "returned ≥ 160 of at most 250" in evaluated.output
+    assert "200 steps" not in evaluated.output and "near-optimal" not in evaluated.output
+
+
+def test_a_run_that_meets_no_criterion_is_told_the_settings_that_suit_its_task(tmp_path):
+    result, out = train(tmp_path, "cartpole-po", "--budget", "16", "--eval-episodes", "4", "--quiet")
+    assert result.exit_code == 0, result.output
+    assert "settings that suit it: --policy rnn:4 --popsize 16" in result.output
+
+
+def test_cmaes_and_model_based_on_ray_run_from_the_command_line(tmp_path):
+    result, out = train(tmp_path, "cartpole", "--search", "sep-cmaes", *SMALL, name="cmaes")
+    assert result.exit_code == 0, result.output
+    assert RunFolder(out).load_checkpoint()["search"]["kind"] == "cmaes"
+    pytest.importorskip("ray")
+    result, out = train(tmp_path, "cartpole", "--model-based", "--budget", "4", "--generations", "2",
+                        "--model-hidden", "8", "--eval-episodes", "4", "--backend", "ray", "--workers", "1",
+                        "--quiet", name="ray")
+    assert result.exit_code == 0, result.output
+    assert "done: 2 iterations, 4 real episodes" in result.output
