@@ -15,9 +15,11 @@ from typing import Any
 import gymnasium
 import numpy as np
 import torch
+from gymnasium.vector import SyncVectorEnv, VectorWrapper
 
 from drrl.envs.batch import ActionMap, observation_size
 from drrl.policies import Policy, make_policy
+from drrl.rollout import evaluate
 from drrl.runs import RunFolder
 
 VIDEO_FORMATS = (".gif", ".mp4")
@@ -77,24 +79,41 @@ def write_video(frames: list[np.ndarray], path: Path | str, fps: float) -> Path:
     return path
 
 
-@torch.inference_mode()
+class FrameRecorder(VectorWrapper):
+    """A one-env vector env that keeps frames of its episode: at the reset, every ``period``-th step while the episode
+    runs, and at its end; and the last step's info."""
+
+    def __init__(self, env: gymnasium.Env, period: int):
+        super().__init__(SyncVectorEnv([lambda: env]))
+        self.single, self.period = env, period
+        self.frames: list[np.ndarray] = []
+        self.steps, self.ended, self.info = 0, False, {}
+
+    def reset(self, **kwargs):
+        observations, infos = self.env.reset(**kwargs)
+        self.frames, self.steps, self.ended = [self.single.render()], 0, False
+        return observations, infos
+
+    def step(self, actions):
+        observations, rewards, terminated, truncated, infos = self.env.step(actions)
+        if not self.ended:  # later steps only restart the env (next-step autoreset)
+            self.steps += 1
+            self.ended = bool(terminated[0] or truncated[0])
+            self.info = {key: value[0] for key, value in infos.items() if not key.startswith("_")}
+            if self.steps % self.period == 0 or self.ended:
+                self.frames.append(self.single.render())
+        return observations, rewards, terminated, truncated, infos
+
+
 def record_episode(policy: Policy, center: torch.Tensor, env: gymnasium.Env, *, seed: int = 0, fps: float = 25.0,
                    max_steps: int | None = None) -> Recording:
-    """Run the policy ``center`` (n,) for one episode of ``env`` (render_mode "rgb_array"), keeping a frame at the
-    start, then every k-th step, k = the env's ``render_fps`` / ``fps`` rounded (at least 1), and at the end."""
-    period = max(1, round(env.metadata.get("render_fps", fps) / fps))
-    action_map = ActionMap(env.action_space)
-    weights, state = policy.unflatten(center.reshape(1, -1)), policy.initial_state(1, 1)
-    obs, info = env.reset(seed=seed)
-    frames = [env.render()]
-    total, steps, done = 0.0, 0, False
-    while not done and (max_steps is None or steps < max_steps):
-        raw, state = policy.act(weights, torch.as_tensor(obs, dtype=torch.float32).view(1, 1, -1), state)
-        obs, reward, terminated, truncated, info = env.step(action_map(raw.reshape(1, -1))[0])
-        total, steps, done = total + float(reward), steps + 1, bool(terminated or truncated)
-        if steps % period == 0 or done:
-            frames.append(env.render())
-    return Recording(frames, env.metadata.get("render_fps", fps) / period, total, steps, info)
+    """Run the policy ``center`` (n,) for one episode of ``env`` (render_mode "rgb_array") through the rollout that
+    trains and measures (:func:`drrl.rollout.evaluate`, episode seed from ``seed``), keeping a frame at the start,
+    then every k-th step, k = the env's ``render_fps`` / ``fps`` rounded (at least 1), and at the end."""
+    rate = env.metadata.get("render_fps", fps)
+    recorder = FrameRecorder(env, period=max(1, round(rate / fps)))
+    result = evaluate(policy, center.reshape(1, -1), recorder, 1, seed=seed, max_steps=max_steps)
+    return Recording(recorder.frames, rate / recorder.period, float(result.returns[0]), result.steps, recorder.info)
 
 
 def render_run(run_path: Path | str, out: Path | str, *, final: bool = False, seed: int = 0, fps: float = 25.0,
