@@ -28,9 +28,10 @@ Departures from the thesis, and why
       o_{t+1} itself: consecutive observations are close, so the change is the part worth learning, and the
       prediction cannot drift far from the current observation in one step.
     * Biases b and c, which the thesis folds into W (3.2).
-    * The LSTM has input, output and forget gates (in the order of torch's ``nn.LSTMCell``). The thesis's
-      3.15–3.21 (Hochreiter and Schmidhuber 1997) have no forget gate (3.21 only adds to the cell); the forget gate
-      (Gers et al. 2000) lets a cell be reset and is what every LSTM since uses.
+    * The LSTM has input, output and forget gates: the LSTM policies' cell (``drrl.policies.recurrent.lstm_cell``,
+      gates ordered i, f, g, o as in torch's ``nn.LSTMCell``). The thesis's 3.15–3.21 (Hochreiter and Schmidhuber 1997) have no forget gate
+      (3.21 only adds to the cell); the forget gate (Gers et al. 2000) lets a cell be reset and is what every LSTM
+      since uses.
     * 3.12–3.13 print the cost as Σ (o_t − y_t), without a square, which is unbounded below and rewards any error
       of one sign. :func:`unfolding_loss` sums the *squared* error over the unfolded steps.
     * The end-of-episode head is trained by the same squared error on its probability (the Brier score).
@@ -52,9 +53,12 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from drrl.policies.recurrent import elman_cell, lstm_cell
+
 MODEL_KINDS = ("rnn", "lstm")
 FUTURE_INPUTS = ("predictions", "zeros")
 GATES = {"rnn": 1, "lstm": 4}  # blocks of pre-activations per layer: the state, or the LSTM's i, f, g, o
+CELLS = {"rnn": elman_cell, "lstm": lstm_cell}
 
 
 @dataclass(frozen=True)
@@ -133,19 +137,13 @@ class WorldModel(nn.Module):
 
     def _advance(self, x: torch.Tensor, state: list[torch.Tensor]) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """The stacked layers on network inputs x (K, B, ·) = (normalised o_t, a_t): read-outs y_t (3.7), new
-        state."""
+        state. Each layer's cell is the recurrent policies' own (``drrl.policies.recurrent``)."""
+        cell, memories = CELLS[self.kind], 1 if self.kind == "rnn" else 2
         new_state = []
         for i, (w, b, bias) in enumerate(zip(self.input_weights, self.recurrent_weights, self.biases)):
-            if self.kind == "rnn":
-                x = torch.tanh(torch.baddbmm(bias, x, w) + torch.bmm(state[i], b))
-                new_state.append(x)
-            else:
-                gates = torch.baddbmm(bias, x, w) + torch.bmm(state[2 * i], b)
-                input_gate, forget_gate, cell_input, output_gate = gates.chunk(4, dim=-1)
-                cell = (torch.sigmoid(forget_gate) * state[2 * i + 1]
-                        + torch.sigmoid(input_gate) * torch.tanh(cell_input))
-                x = torch.sigmoid(output_gate) * torch.tanh(cell)
-                new_state += [x, cell]
+            memory = tuple(state[memories * i: memories * (i + 1)])
+            x, memory = cell(torch.baddbmm(bias, x, w) + torch.bmm(memory[0], b), memory)
+            new_state += memory
         return torch.baddbmm(self.readout_bias, x, self.readout_weight), new_state
 
     def _normalise(self, observation: torch.Tensor) -> torch.Tensor:
