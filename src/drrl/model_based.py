@@ -53,7 +53,7 @@ class ModelDiverged(RuntimeError):
 class ModelBased(World):
     """Real episodes feed a world model; the search's generations run inside it, through ``backend``.
 
-    Runs on one torch thread: the model's matrices are small (batches of a few hundred rows, widths of tens), so a
+    Each iteration runs on one torch thread: the model's matrices are small (batches of a few hundred rows, widths of tens), so a
     second thread costs more in hand-offs than it gains, and leaves the other core to the machine.
     """
 
@@ -75,8 +75,6 @@ class ModelBased(World):
         self.known_reward = entry.reward if settings.reward in ("auto", "known") else None
         self.buffer = EpisodeBuffer()
         self.sizes = iteration_sizes(config.budget, settings)
-        self._threads = torch.get_num_threads()
-        torch.set_num_threads(1)
 
     @property
     def iterations(self) -> int:
@@ -87,6 +85,15 @@ class ModelBased(World):
         return sum(self.sizes)
 
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return self.iterate(setup, counters, iteration)
+        finally:
+            torch.set_num_threads(threads)
+
+    def iterate(self, setup: Setup, counters: Counters, iteration: int) -> dict:
+        """Collect, fit, search in the model (module docstring); the iteration's metrics row."""
         config, search = self.config, setup.search
         # 1. real episodes: the centre and explorers (only explorers before the model has informed μ)
         params = exploring_policies(search, self.sizes[iteration - 1], with_center=iteration > 1)
@@ -160,7 +167,6 @@ class ModelBased(World):
                 f"({settings.model_kind} {'×'.join(map(str, settings.hidden))}, K = {settings.ensemble_size})")
 
     def close(self) -> None:
-        torch.set_num_threads(self._threads)
         self.backend.close()
 
 
