@@ -172,13 +172,16 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
         checkpoint = run.load_checkpoint()
     except ValueError as error:
         raise click.ClickException(str(error)) from None
-    entry = lookup(checkpoint["env_id"])
+    try:
+        entry = lookup(checkpoint["env_id"])
+    except ValueError as error:
+        raise click.ClickException(f"{run_path}: {error}") from None
     env = make_batch_env(entry.env_id, episodes)
     policy = build_policy(config, env)
     center = checkpoint["center"] if final else checkpoint["best_center"]
     unit = checkpoint.get("unit", "generation")
-    step = checkpoint.get("best_iteration" if not final else "iteration",  # or as drrl 0.1 named them
-                          checkpoint.get("best_generation" if not final else "generation"))
+    key = "iteration" if final else "best_iteration"
+    step = checkpoint.get(key, checkpoint.get(key.replace("iteration", "generation")))  # as older runs name it
     which = f"{'final' if final else 'best measured'} centre ({unit} {step})"
     result = measure(policy, center, env, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
     env.close()
