@@ -23,7 +23,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from drrl.models.recurrent import WorldModel
+from drrl.models.base import LearnedModel
 
 # (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,)): a task's reward in closed form,
 # as drrl's environment registry holds it (drrl.envs.registry.EnvEntry.reward)
@@ -36,6 +36,7 @@ class ImaginedWorld:
     weights, the real start observations and the task's horizon and reward. ``make`` builds the env (an
     ``EnvSource`` of drrl.envs.batch), so that rollout workers can step imagined episodes as they step real ones."""
 
+    model_type: type  # a LearnedModel class, e.g. drrl.models.recurrent.WorldModel
     model_settings: dict
     model_state: dict[str, torch.Tensor]
     start_observations: np.ndarray
@@ -45,22 +46,22 @@ class ImaginedWorld:
     disagreement_penalty: float = 0.0
 
     @classmethod
-    def of(cls, model: WorldModel, start_observations: np.ndarray, action_space: spaces.Space, horizon: int,
+    def of(cls, model: LearnedModel, start_observations: np.ndarray, action_space: spaces.Space, horizon: int,
            known_reward: RewardFunction | None = None, disagreement_penalty: float = 0.0) -> ImaginedWorld:
         state = {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
-        return cls(model.settings(), state, np.asarray(start_observations, dtype=np.float32), action_space, horizon,
+        return cls(type(model), model.settings(), state, np.asarray(start_observations, dtype=np.float32), action_space, horizon,
                    known_reward, disagreement_penalty)
 
     def make(self, num_envs: int) -> ImaginedEnv:
         with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace
-            model = WorldModel(**self.model_settings)
+            model = self.model_type(**self.model_settings)
         model.load_state_dict(self.model_state)
         return ImaginedEnv(model, self.start_observations, num_envs, self.action_space, self.horizon,
                            self.known_reward, self.disagreement_penalty)
 
 
 class ImaginedEnv(VectorEnv):
-    """``num_envs`` imagined episodes stepped together by a :class:`WorldModel`, with next-step autoreset.
+    """``num_envs`` imagined episodes stepped together by a learned model, with next-step autoreset.
 
     Args:
         model: the world model(s); a member is drawn per episode.
@@ -68,12 +69,12 @@ class ImaginedEnv(VectorEnv):
         action_space: the real env's single action space (the policy's actions pass through unchanged).
         horizon: steps after which an imagined episode is truncated (the real task's).
         known_reward: reward and end in closed form; None to use the model's own heads (end when p̂ > 0.5).
-        disagreement_penalty: λ in r ← r − λ · disagreement (:meth:`WorldModel.disagreement`), 0 for none.
+        disagreement_penalty: λ in r ← r − λ · disagreement (``model.disagreement``), 0 for none.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, model: WorldModel, start_observations: np.ndarray, num_envs: int, action_space: spaces.Space,
+    def __init__(self, model: LearnedModel, start_observations: np.ndarray, num_envs: int, action_space: spaces.Space,
                  horizon: int, known_reward: RewardFunction | None = None, disagreement_penalty: float = 0.0):
         starts = np.asarray(start_observations, dtype=np.float32)
         if starts.ndim != 2 or len(starts) == 0:

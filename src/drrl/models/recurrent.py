@@ -48,26 +48,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import torch
 from torch import nn
 
+from drrl.models.base import Prediction
 from drrl.policies.recurrent import elman_cell, lstm_cell
 
 MODEL_KINDS = ("rnn", "lstm")
 FUTURE_INPUTS = ("predictions", "zeros")
 GATES = {"rnn": 1, "lstm": 4}  # blocks of pre-activations per layer: the state, or the LSTM's i, f, g, o
 CELLS = {"rnn": elman_cell, "lstm": lstm_cell}
-
-
-@dataclass(frozen=True)
-class Prediction:
-    """What each of the K members predicts for each unfolded step t: o_{t+1}, r_{t+1} and P(episode ends at t+1)."""
-
-    observations: torch.Tensor  # (K, ..., o)
-    rewards: torch.Tensor  # (K, ...)
-    ends: torch.Tensor  # (K, ...) probabilities
 
 
 class WorldModel(nn.Module):

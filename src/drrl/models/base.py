@@ -1,0 +1,49 @@
+"""The world-model interface: what imagination (``drrl.models.imagined``) and the model-based loop need of a model.
+
+A model predicts, for a batch of environments, the next observation, the reward and whether the episode ends, from
+the current observation and action and its own recurrent state; it may be an ensemble of K members, each predicting.
+The recurrent models of thesis 3.3–3.5 (:class:`drrl.models.recurrent.WorldModel`) are one kind; another kind is
+one new module with a class of this shape (and its fitting).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import torch
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """What each of the K members predicts for each step t: o_{t+1}, r_{t+1} and P(episode ends at t+1)."""
+
+    observations: torch.Tensor  # (K, ..., o)
+    rewards: torch.Tensor  # (K, ...)
+    ends: torch.Tensor  # (K, ...) probabilities
+
+
+class LearnedModel(Protocol):
+    """A learned model of an environment, stepped in batches (an ``nn.Module``)."""
+
+    device: torch.device
+
+    def __len__(self) -> int:
+        """K, the members of the ensemble (1 for a single model)."""
+
+    def settings(self) -> dict:
+        """Constructor arguments: ``type(model)(**model.settings())`` builds a model of the same shape."""
+
+    def initial_state(self, batch: int) -> list[torch.Tensor]:
+        """Fresh recurrent state for ``batch`` new episodes, every member's."""
+
+    def step(self, observation: torch.Tensor, action: torch.Tensor, state: list[torch.Tensor],
+             observed: bool | torch.Tensor = True) -> tuple[Prediction, list[torch.Tensor]]:
+        """Every member's prediction of the next step (K, B, ·) for o_t (B, o) and a_t (B, a); the new state."""
+
+    def disagreement(self, prediction: Prediction) -> torch.Tensor:
+        """(B,) how much the members disagree on a prediction; 0 for a single model."""
+
+    def state_dict(self) -> dict[str, torch.Tensor]: ...
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]): ...
