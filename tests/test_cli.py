@@ -179,3 +179,24 @@ def test_cmaes_and_model_based_on_ray_run_from_the_command_line(tmp_path):
                         "--quiet", name="ray")
     assert result.exit_code == 0, result.output
     assert "done: 2 iterations, 4 real episodes" in result.output
+
+
+def test_a_run_folder_belongs_to_one_process_and_a_killed_ones_folder_is_taken_over(tmp_path):
+    out = tmp_path / "run"
+    drrl = str(Path(sys.executable).with_name("drrl"))
+    process = subprocess.Popen([drrl, "train", "cartpole", "--budget", "100000", "--quiet", "--out", str(out)],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        while not (out / "metrics.csv").exists():
+            assert process.poll() is None
+        second, _ = train(tmp_path, "cartpole", *SMALL, name="other")
+        assert second.exit_code == 0  # its own folder: fine
+        same = CliRunner().invoke(main, ["train", "cartpole", *SMALL, "--out", str(out)])
+        resumed = CliRunner().invoke(main, ["train", "--resume", str(out)])
+        for result in (same, resumed):
+            assert result.exit_code != 0 and "in use by another drrl process" in result.output
+            assert "Traceback" not in result.output
+    finally:
+        process.kill()
+        process.wait()
+    RunFolder(out).claim().release()  # the killed process's hold went with it

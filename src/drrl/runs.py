@@ -13,6 +13,7 @@ import hashlib
 import io
 import json
 import os
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,11 @@ import torch
 from pydantic import ValidationError
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
+
+try:
+    import fcntl
+except ImportError:  # not on Windows: run folders are then not held
+    fcntl = None
 
 from drrl.config import TrainConfig, describe_errors
 
@@ -35,15 +41,46 @@ class RunFolder:
 
     def __init__(self, path: Path | str):
         self.path = Path(path)
+        self._hold: weakref.finalize | None = None
 
     @classmethod
     def create(cls, path: Path | str) -> RunFolder:
-        """Make a new, empty run folder; refuse to write into one that holds files."""
+        """Make a new, empty run folder, held by this process (:meth:`claim`); refuse one that holds files."""
         path = Path(path)
-        if path.exists() and any(path.iterdir()):
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise ValueError(f"cannot make run folder {path}: {error.strerror}; choose another --out") from None
+        folder = cls(path).claim()
+        if any(path.iterdir()):
+            folder.release()
             raise ValueError(f"run folder {path} already holds files; choose another --out")
-        path.mkdir(parents=True, exist_ok=True)
-        return cls(path)
+        return folder
+
+    def claim(self) -> RunFolder:
+        """Hold the folder for this run: another process that tries to train or resume into it is refused until
+        :meth:`release` or this process ends, however it ends (the operating system drops the hold of a killed
+        process). A no-op where the platform has no ``flock``."""
+        if fcntl is None or self._hold is not None:
+            return self
+        try:
+            handle = os.open(self.path, os.O_RDONLY)
+        except OSError as error:
+            raise ValueError(f"cannot open run folder {self.path}: {error.strerror}") from None
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(handle)
+            raise ValueError(f"run folder {self.path} is in use by another drrl process (training or resuming "
+                             f"it); wait for it to end, or choose another --out") from None
+        self._hold = weakref.finalize(self, os.close, handle)
+        return self
+
+    def release(self) -> None:
+        """Let other processes claim the folder again."""
+        if self._hold is not None:
+            self._hold()
+            self._hold = None
 
     def write_config(self, config: TrainConfig) -> None:
         _write_atomically(self.path / CONFIG, config.model_dump_json(indent=2) + "\n")

@@ -22,14 +22,15 @@ INSTALL_TENSORBOARD = '--tensorboard needs TensorBoard, which is not installed: 
 
 
 class RunFolderWriter(Subscriber):
-    """Writes the run folder: the config and a first checkpoint at the start (a run killed before its first
-    checkpoint can still be resumed), a metrics row per step, every checkpoint, and at the end the last whole
-    step's checkpoint and the learning curve."""
+    """Writes the run folder, which it holds for the run (``RunFolder.claim``): the config and a first checkpoint at
+    the start (a run killed before its first checkpoint can still be resumed), a metrics row per step, every
+    checkpoint, and at the end the last whole step's checkpoint and the learning curve."""
 
     def __init__(self, folder: RunFolder):
         self.folder = folder
 
     def started(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
+        self.folder.claim()
         if counters.iteration == 0:
             self.folder.write_config(setup.config)
             self.folder.save_checkpoint(snapshot)
@@ -41,9 +42,12 @@ class RunFolderWriter(Subscriber):
         self.folder.save_checkpoint(snapshot)
 
     def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
-        self.folder.save_checkpoint(snapshot)
-        if counters.iteration:
-            self.folder.plot_learning_curve(setup.world.title(setup))
+        try:
+            self.folder.save_checkpoint(snapshot)
+            if counters.iteration:
+                self.folder.plot_learning_curve(setup.world.title(setup))
+        finally:
+            self.folder.release()
 
 
 class ProgressBar(Subscriber):

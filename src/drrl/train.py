@@ -68,18 +68,26 @@ def prepare(config: TrainConfig, backend: str = "local", address: str | None = N
 
 def prepare_resume(folder: RunFolder, backend: str = "local", address: str | None = None,
                    workers: int | None = None) -> tuple[Setup, Counters]:
-    """The run in ``folder`` rebuilt at its checkpoint, its metrics.csv cut back to the checkpoint's step.
+    """The run in ``folder`` rebuilt at its checkpoint, its metrics.csv cut back to the checkpoint's step; the folder
+    is held by this process from now on (``RunFolder.claim``).
 
-    A folder that cannot be resumed exactly (a bad config or checkpoint, missing metrics) raises ValueError.
+    A folder that cannot be resumed exactly (a bad config or checkpoint, missing metrics), or that another process
+    holds, raises ValueError.
     """
-    config = folder.read_config()
-    checkpoint = folder.load_checkpoint()
-    setup = prepare(config, backend, address, workers)
+    folder.claim()
+    try:
+        config = folder.read_config()
+        checkpoint = folder.load_checkpoint()
+        setup = prepare(config, backend, address, workers)
+    except BaseException:
+        folder.release()
+        raise
     try:
         counters = restore(setup, checkpoint)
         counters.rows = folder.truncate_metrics(counters.iteration)
     except BaseException:
         setup.close()
+        folder.release()
         raise
     return setup, counters
 
