@@ -35,13 +35,16 @@ def torch_rnn_cells(policy, params, candidate) -> list[torch.nn.RNNCell]:
 
 
 def torch_lstm_cells(policy, params, candidate) -> list[torch.nn.LSTMCell]:
-    """nn.LSTMCell per layer loaded with candidate p's weights: our gate columns (i, f, g, o) are its rows."""
+    """nn.LSTMCell per layer loaded with candidate p's weights; our gate columns (i, f, o, g) → its rows
+    (i, f, g, o)."""
     cells = []
     for fan_in, width, (fused, bias) in zip(policy.inputs, policy.hidden, layer_weights(policy, params, candidate)):
+        i, f, o, g = (torch.arange(width) + k * width for k in range(4))
+        order = torch.cat([i, f, g, o])
         cell = torch.nn.LSTMCell(fan_in, width).double()
-        cell.weight_ih.data = fused[:fan_in].T.contiguous()
-        cell.weight_hh.data = fused[fan_in:].T.contiguous()
-        cell.bias_ih.data, cell.bias_hh.data = bias.clone(), torch.zeros(4 * width, dtype=torch.float64)
+        cell.weight_ih.data = fused[:fan_in, order].T.contiguous()
+        cell.weight_hh.data = fused[fan_in:, order].T.contiguous()
+        cell.bias_ih.data, cell.bias_hh.data = bias[order].clone(), torch.zeros(4 * width, dtype=torch.float64)
         cells.append(cell)
     return cells
 

@@ -3,7 +3,7 @@ batched env.
 
 The interface is :class:`~drrl.models.base.LearnedModel`; fitting is ``drrl.models.fit.fit``; the model-based world,
 a part of the training loop, lives one layer up in ``drrl.model_based``. This package imports of drrl only the
-recurrent policies' cells (``drrl.policies.recurrent``); a task's closed-form reward comes in as a function.
+Elman policies' cell (``drrl.policies.recurrent``); a task's closed-form reward comes in as a function.
 """
 
 from drrl.models.base import LearnedModel, Prediction

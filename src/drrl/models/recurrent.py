@@ -28,10 +28,12 @@ Departures from the thesis, and why
       o_{t+1} itself: consecutive observations are close, so the change is the part worth learning, and the
       prediction cannot drift far from the current observation in one step.
     * Biases b and c, which the thesis folds into W (3.2).
-    * The LSTM has input, output and forget gates: the LSTM policies' cell (``drrl.policies.recurrent.lstm_cell``,
-      gates ordered i, f, g, o as in torch's ``nn.LSTMCell``). The thesis's 3.15–3.21 (Hochreiter and Schmidhuber 1997) have no forget gate
-      (3.21 only adds to the cell); the forget gate (Gers et al. 2000) lets a cell be reset and is what every LSTM
-      since uses.
+    * The LSTM has input, output and forget gates, in the order of torch's ``nn.LSTMCell``. The thesis's
+      3.15–3.21 (Hochreiter and Schmidhuber 1997) have no forget gate (3.21 only adds to the cell); the forget gate
+      (Gers et al. 2000) lets a cell be reset and is what every LSTM since uses. The state-space layers step with
+      the Elman policies' cell; the LSTM keeps a cell of its own, because the LSTM policies' orders its gates
+      (i, f, o, g) and rounds its update by ``addcmul``: one shared cell would change the numbers of either the
+      world models' or the LSTM policies' measured runs.
     * 3.12–3.13 print the cost as Σ (o_t − y_t), without a square, which is unbounded below and rewards any error
       of one sign. :func:`unfolding_loss` sums the *squared* error over the unfolded steps.
     * The end-of-episode head is trained by the same squared error on its probability (the Brier score).
@@ -53,12 +55,23 @@ import torch
 from torch import nn
 
 from drrl.models.base import Prediction
-from drrl.policies.recurrent import elman_cell, lstm_cell
+from drrl.policies.recurrent import elman_cell
 
 MODEL_KINDS = ("rnn", "lstm")
 FUTURE_INPUTS = ("predictions", "zeros")
 GATES = {"rnn": 1, "lstm": 4}  # blocks of pre-activations per layer: the state, or the LSTM's i, f, g, o
-CELLS = {"rnn": elman_cell, "lstm": lstm_cell}
+
+
+def _lstm_cell(pre_activation: torch.Tensor, memory: tuple[torch.Tensor, torch.Tensor]
+               ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+    """An LSTM layer from its pre-activation (gates i, f, g, o, as nn.LSTMCell) and memory (h, c): (h, (h, c))."""
+    input_gate, forget_gate, cell_input, output_gate = pre_activation.chunk(4, dim=-1)
+    cell = torch.sigmoid(forget_gate) * memory[1] + torch.sigmoid(input_gate) * torch.tanh(cell_input)
+    hidden = torch.sigmoid(output_gate) * torch.tanh(cell)
+    return hidden, (hidden, cell)
+
+
+CELLS = {"rnn": elman_cell, "lstm": _lstm_cell}
 
 
 class WorldModel(nn.Module):
@@ -136,6 +149,7 @@ class WorldModel(nn.Module):
             x, memory = cell(torch.baddbmm(bias, x, w) + torch.bmm(memory[0], b), memory)
             new_state += memory
         return torch.baddbmm(self.readout_bias, x, self.readout_weight), new_state
+
 
     def _normalise(self, observation: torch.Tensor) -> torch.Tensor:
         return (observation - _per_member(self.observation_mean, observation)) / _per_member(self.observation_scale,

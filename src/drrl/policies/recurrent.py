@@ -11,7 +11,7 @@ input x_t (the observation, or the output of the layer below) and its own previo
 and the action is a linear read-out of the top layer, a_t = A h_t + c (as 3.7 reads the model's output off s_t).
 
 Batched and fused. Each layer keeps [W; B] (or [W; U]) as one matrix of shape (in + w, G·w), G = 1 (Elman) or
-4 (LSTM gates, in nn.LSTMCell's order i, f, g, o). A step of a layer is one
+4 (LSTM gates, in the order i, f, o, g so that one sigmoid covers the three gates). A step of a layer is one
 ``torch.baddbmm`` of [x_t, h_{t−1}] (P, B, in + w) with it: every candidate p has its own weights, and all P × B
 environments advance together.
 
@@ -53,21 +53,10 @@ FORGET_BIAS = 1.0  # the forget gate starts mostly open (sigmoid(1) ≈ 0.73): m
 
 
 def elman_cell(pre_activation: torch.Tensor, memory: tuple[torch.Tensor]) -> tuple[torch.Tensor, tuple[torch.Tensor]]:
-    """An Elman layer (3.4) from its pre-activation z_t = W x_t + B h_{t−1} + b: (h_t, (h_t,)). The world models
-    (drrl.models.recurrent) step their layers with it too."""
+    """An Elman layer (3.4) from its pre-activation z_t = W x_t + B h_{t−1} + b: (h_t, (h_t,)). The state-space
+    world models (drrl.models.recurrent) step their layers with it too."""
     hidden = torch.tanh(pre_activation)
     return hidden, (hidden,)
-
-
-def lstm_cell(pre_activation: torch.Tensor, memory: tuple[torch.Tensor, torch.Tensor]
-              ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
-    """An LSTM layer from its pre-activation z_t (columns ordered i, f, g, o, as nn.LSTMCell's rows) and memory
-    (h_{t−1}, c_{t−1}): (h_t, (h_t, c_t)), c_t = f ⊙ c_{t−1} + i ⊙ g, h_t = o ⊙ tanh(c_t). The world models step
-    their layers with it too."""
-    input_gate, forget_gate, candidate, output_gate = pre_activation.chunk(4, dim=-1)
-    cell = torch.sigmoid(forget_gate) * memory[1] + torch.sigmoid(input_gate) * torch.tanh(candidate)
-    hidden = torch.sigmoid(output_gate) * torch.tanh(cell)
-    return hidden, (hidden, cell)
 
 
 class Recurrent(Policy):
@@ -152,13 +141,20 @@ class ElmanRNN(Recurrent):
 class LSTM(Recurrent):
     """LSTM layers with input, forget and output gates (thesis 3.15–3.21 plus the forget gate, Gers et al. 2000).
 
-    The fused pre-activation's columns are ordered (i, f, g, o), as nn.LSTMCell orders its rows.
+    The fused pre-activation's columns are ordered (i, f, o, g); nn.LSTMCell orders its rows (i, f, g, o).
     """
 
     gates = 4
     memories = 2
 
-    cell = staticmethod(lstm_cell)
+    def cell(self, pre_activation, memory):
+        _, cell = memory
+        width = cell.shape[-1]
+        input_gate, forget_gate, output_gate = torch.sigmoid(pre_activation[..., : 3 * width]).chunk(3, dim=-1)
+        candidate = torch.tanh(pre_activation[..., 3 * width :])
+        cell = torch.addcmul(forget_gate * cell, input_gate, candidate)
+        hidden = output_gate * torch.tanh(cell)
+        return hidden, (hidden, cell)
 
     def initial_bias(self, width):
         bias = torch.zeros(self.gates * width)
