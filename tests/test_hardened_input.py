@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from safetensors import safe_open
 from safetensors.torch import save_file
 
 from drrl.cli import main
@@ -60,6 +61,21 @@ def rewrite_checkpoint(folder: RunFolder, change) -> None:
     folder.save_checkpoint(state)
 
 
+def edit_config(folder: RunFolder, **settings) -> None:
+    (folder.path / CONFIG).write_text(json.dumps({**json.loads((folder.path / CONFIG).read_text()), **settings}))
+
+
+def rename_digest(folder: RunFolder, key: str) -> None:
+    """The checkpoint with its digest under another key and a flipped data bit."""
+    file = folder.path / CHECKPOINT
+    with safe_open(file, framework="pt") as handle:
+        tensors = {name: handle.get_tensor(name) for name in handle.keys()}
+        metadata = handle.metadata()
+    metadata[key] = metadata.pop("sha256")
+    tensors["/center"][0] += 1.0
+    save_file(tensors, file, metadata=metadata)
+
+
 def flip_last_data_byte(file):
     data = bytearray(file.read_bytes())
     data[-1] ^= 0x01
@@ -87,13 +103,18 @@ DAMAGE = {
     "a negative counter": (lambda f: rewrite_checkpoint(f, lambda s: s.update(iteration=-2)),
                            "checkpoint's iteration is -2; it must be a whole number >= 0"),
     "a NaN centre": (lambda f: rewrite_checkpoint(f, lambda s: s["center"].fill_(float("nan"))),
-                     "checkpoint's center must be a 1-D tensor of finite numbers"),
-    "another policy": (lambda f: (f.path / CONFIG).write_text(
-        (f.path / CONFIG).read_text().replace('"linear:nobias"', '"mlp:2"')),
-        "checkpoint is for num_params 4 but the run's config gives 13"),
-    "another sampler": (lambda f: (f.path / CONFIG).write_text(
-        (f.path / CONFIG).read_text().replace('"symmetric"', '"reinforce"')),
-        "state is for sampler='symmetric' but this PGPE has sampler='reinforce'"),
+                     "checkpoint's center must be 4 finite float32 numbers (its num_params)"),
+    "a float64 centre": (lambda f: rewrite_checkpoint(f, lambda s: s.update(center=s["center"].double())),
+                         "checkpoint's center must be 4 finite float32 numbers (its num_params)"),
+    "a wrong-shaped centre": (lambda f: rewrite_checkpoint(f, lambda s: s.update(best_center=torch.zeros(4, 1))),
+                              "checkpoint's best_center must be 4 finite float32 numbers (its num_params)"),
+    "another policy": (lambda f: edit_config(f, policy="mlp:2"),
+                       "(policy: 'mlp:2' in config.json, 'linear:nobias' when trained)"),
+    "another sampler": (lambda f: edit_config(f, sampler="reinforce"),
+                        "(sampler: 'reinforce' in config.json, 'symmetric' when trained)"),
+    "another seed": (lambda f: edit_config(f, seed=5), "(seed: 5 in config.json, 0 when trained)"),
+    "another model": (lambda f: edit_config(f, model_based={"hidden": [8]}), "(model_based: {'initial_episodes'"),
+    "no digest": (lambda f: rename_digest(f, "sha257"), "has no SHA-256 digest, so its contents cannot be checked"),
     "a truncated config": (lambda f: (f.path / CONFIG).write_text((f.path / CONFIG).read_text()[:50]),
                            "config.json is not a valid drrl config:\nconfig: Invalid JSON: EOF while parsing"),
     "an edited config": (lambda f: (f.path / CONFIG).write_text(
@@ -117,12 +138,17 @@ def test_resume_refuses_a_damaged_run_folder_each_with_its_own_message(tmp_path,
     assert message in result.output, result.output
 
 
-def test_eval_refuses_a_damaged_checkpoint(tmp_path, finished):
+@pytest.mark.parametrize("damage", ["a flipped bit", "no digest", "another policy", "another seed", "a float64 centre",
+                                    "a wrong-shaped centre", "a NaN centre", "model-based"])
+@pytest.mark.parametrize("command", ["eval", "render"])
+def test_eval_and_render_refuse_what_resume_refuses(tmp_path, finished, damage, command):
+    spoil, message = DAMAGE[damage]
     out = tmp_path / "run"
     shutil.copytree(finished, out)
-    flip_last_data_byte(out / CHECKPOINT)
-    result = CliRunner().invoke(main, ["eval", str(out)])
-    assert result.exit_code == 1 and "is corrupted: its contents do not match their SHA-256 digest" in result.output
+    spoil(RunFolder(out))
+    result = CliRunner().invoke(main, [command, str(out), *(["--out", str(tmp_path / "x.gif")] * (command == "render"))])
+    assert result.exit_code == 1 and message in result.output, result.output
+    assert "Traceback" not in result.output and not (tmp_path / "x.gif").exists()
 
 
 class NaNObservationEnv(gymnasium.Env):

@@ -36,6 +36,7 @@ def same_state(a: Path, b: Path) -> bool:
     first, second = RunFolder(a).load_checkpoint(), RunFolder(b).load_checkpoint()
     search_a, search_b = first.pop("search"), second.pop("search")
     first.pop("wall_time"), second.pop("wall_time")
+    first.pop("config"), second.pop("config")  # the runs compared differ in checkpoint_every alone
     return (all(torch.equal(search_a[k], search_b[k]) if isinstance(search_a[k], torch.Tensor)
                 else search_a[k] == search_b[k] for k in search_a if k != "optimizer_state")
             and torch.equal(first.pop("center"), second.pop("center"))

@@ -18,7 +18,7 @@ from drrl.policies import ACCEPTED_FORMS
 from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 from drrl.rollout import BACKENDS, NonFiniteOutput
-from drrl.train import build_policy, prepare, prepare_resume, subscribers
+from drrl.train import build_policy, open_run, prepare, prepare_resume, subscribers, trained_center
 from drrl.cli_model_based import compare_command, model_based_options, pop_model_options, with_model_based
 from drrl.model_based import ModelDiverged
 
@@ -168,22 +168,19 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
     """
     run = RunFolder(run_path)
     try:
-        config = run.read_config()
-        checkpoint = run.load_checkpoint()
-    except ValueError as error:
-        raise click.ClickException(str(error)) from None
-    try:
+        config, checkpoint = open_run(run)
         entry = lookup(checkpoint["env_id"])
+        env = make_batch_env(entry.env_id, episodes)
     except ValueError as error:
         raise click.ClickException(f"{run_path}: {error}") from None
-    env = make_batch_env(entry.env_id, episodes)
-    policy = build_policy(config, env)
-    center = checkpoint["center"] if final else checkpoint["best_center"]
-    unit = checkpoint.get("unit", "generation")
-    key = "iteration" if final else "best_iteration"
-    step = checkpoint.get(key, checkpoint.get(key.replace("iteration", "generation")))  # as older runs name it
-    which = f"{'final' if final else 'best measured'} centre ({unit} {step})"
-    result = measure(policy, center, env, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
+    try:
+        center = trained_center(checkpoint, build_policy(config, env), final)
+    except ValueError as error:
+        env.close()
+        raise click.ClickException(f"{run_path}: {error}") from None
+    step = checkpoint["iteration"] if final else checkpoint["best_iteration"]
+    which = f"{'final' if final else 'best measured'} centre ({checkpoint.get('unit', 'generation')} {step})"
+    result = measure(build_policy(config, env), center, env, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
     env.close()
     returns = result.episode_returns.flatten().numpy()
     click.echo(f"{entry.env_id}, {config.policy} policy, {which}, {episodes} episodes: return "

@@ -224,7 +224,8 @@ def checkpoint_state(setup: Setup, counters: Counters) -> dict:
     """The run's state between steps, for ``RunFolder.save_checkpoint`` and :func:`restore`."""
     search = setup.search
     best = search.center if counters.best_center is None else counters.best_center
-    return {"kind": setup.world.kind, "unit": setup.world.unit, "search": search.state_dict(),
+    return {"kind": setup.world.kind, "unit": setup.world.unit, "config": setup.config.model_dump(mode="json"),
+            "search": search.state_dict(),
             "center": search.center.detach().cpu(), "env_id": setup.entry.env_id, "best_center": best.detach().cpu(),
             "best_center_return": counters.best_center_return, "num_params": setup.policy.num_params,
             "wall_time": counters.wall_time, **{key: getattr(counters, key) for key in COUNTS},
@@ -243,10 +244,14 @@ def check_checkpoint(checkpoint: dict, kind: str) -> None:
         value = checkpoint[key]
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
             raise ValueError(f"checkpoint's {key} is {value!r}; it must be a whole number >= 0")
+    size = checkpoint["num_params"]
+    if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+        raise ValueError(f"checkpoint's num_params is {size!r}; it must be a whole number >= 1")
     for key in ("center", "best_center"):
         value = checkpoint[key]
-        if not isinstance(value, torch.Tensor) or value.dim() != 1 or not bool(torch.isfinite(value).all()):
-            raise ValueError(f"checkpoint's {key} must be a 1-D tensor of finite numbers")
+        if (not isinstance(value, torch.Tensor) or value.dtype != torch.float32 or value.shape != (size,)
+                or not bool(torch.isfinite(value).all())):
+            raise ValueError(f"checkpoint's {key} must be {size} finite float32 numbers (its num_params)")
 
 
 def restore(setup: Setup, checkpoint: dict) -> Counters:

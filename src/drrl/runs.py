@@ -142,6 +142,22 @@ class RunFolder:
             raise ValueError(f"{self.path} has no checkpoint ({CHECKPOINT})")
         return read_checkpoint(file)
 
+    def load_run(self) -> tuple[TrainConfig, dict[str, Any]]:
+        """config.json and the checkpoint, refused unless the checkpoint was trained with exactly these settings
+        (it records them): what eval, resume and render read."""
+        config, checkpoint = self.read_config(), self.load_checkpoint()
+        recorded = checkpoint.get("config")
+        if not isinstance(recorded, dict):
+            raise ValueError(f"checkpoint in {self.path} does not record the settings it was trained with (written "
+                             f"by an older drrl?), so it cannot be matched to its config.json")
+        changed = _differences(config.model_dump(mode="json"), recorded)
+        if changed:
+            shown = "; ".join(f"{key}: {_short(now)} in {CONFIG}, {_short(then)} when trained"
+                              for key, now, then in changed[:5])
+            raise ValueError(f"{self.path / CONFIG} differs from the settings its checkpoint was trained with "
+                             f"({shown}); restore it, or train a new run with the new settings")
+        return config, checkpoint
+
     def plot_learning_curve(self, title: str) -> Path:
         """The centre policy's return against real training episodes, as the thesis's Figure 5.2."""
         import matplotlib
@@ -178,7 +194,10 @@ def read_checkpoint(file: Path) -> dict[str, Any]:
                          f"({error})") from None
     if "state" not in metadata:
         raise ValueError(f"checkpoint {file} holds no drrl state: not a drrl checkpoint")
-    if "sha256" in metadata and metadata["sha256"] != _digest(metadata["state"], tensors):
+    if "sha256" not in metadata:
+        raise ValueError(f"checkpoint {file} has no SHA-256 digest, so its contents cannot be checked; drrl writes one "
+                         f"into every checkpoint")
+    if metadata["sha256"] != _digest(metadata["state"], tensors):
         raise ValueError(f"checkpoint {file} is corrupted: its contents do not match their SHA-256 digest")
     try:
         return _decode(json.loads(metadata["state"]), tensors)
@@ -211,6 +230,23 @@ def _digest(tree: str, tensors: dict[str, torch.Tensor]) -> str:
         digest.update(f"{key}|{tensor.dtype}|{tuple(tensor.shape)}".encode())
         digest.update(tensor.reshape(-1).view(torch.uint8).numpy().tobytes())
     return digest.hexdigest()
+
+
+def _differences(now: dict, then: dict, prefix: str = "") -> list[tuple[str, Any, Any]]:
+    """(setting, value now, value then) for every setting of two nested settings dicts that differs."""
+    found = []
+    for key in sorted(now.keys() | then.keys()):
+        a, b = now.get(key), then.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            found += _differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            found.append((f"{prefix}{key}", a, b))
+    return found
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _write_atomically(file: Path, text: str) -> None:

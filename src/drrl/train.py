@@ -15,7 +15,7 @@ import torch
 from drrl.config import TrainConfig
 from drrl.envs.batch import ActionMap, RegisteredEnv, make_batch_env, observation_size
 from drrl.envs.registry import lookup
-from drrl.loop import Counters, Setup, Subscriber, restore, run
+from drrl.loop import Counters, Setup, Subscriber, check_checkpoint, restore, run
 from drrl.model_based import ModelBased
 from drrl.model_free import ModelFree
 from drrl.policies import Policy, make_policy
@@ -76,8 +76,7 @@ def prepare_resume(folder: RunFolder, backend: str = "local", address: str | Non
     """
     folder.claim()
     try:
-        config = folder.read_config()
-        checkpoint = folder.load_checkpoint()
+        config, checkpoint = folder.load_run()
         setup = prepare(config, backend, address, workers)
     except BaseException:
         folder.release()
@@ -90,6 +89,22 @@ def prepare_resume(folder: RunFolder, backend: str = "local", address: str | Non
         folder.release()
         raise
     return setup, counters
+
+
+def open_run(folder: RunFolder) -> tuple[TrainConfig, dict]:
+    """A run folder's config and checkpoint for eval and render, each checked: the checkpoint trained with exactly
+    this config, of its kind, with every counter and centre well formed."""
+    config, checkpoint = folder.load_run()
+    check_checkpoint(checkpoint, "model-based" if config.model_based else "model-free")
+    return config, checkpoint
+
+
+def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> torch.Tensor:
+    """The best measured centre (or, ``final``, the last one) for ``policy``, which must have its size."""
+    if checkpoint["num_params"] != policy.num_params:
+        raise ValueError(f"checkpoint holds {checkpoint['num_params']} weights, but its {policy.num_params}-weight "
+                         f"policy needs as many")
+    return checkpoint["center"] if final else checkpoint["best_center"]
 
 
 def subscribers(folder: RunFolder | None, progress: bool, tensorboard: bool = False) -> list[Subscriber]:

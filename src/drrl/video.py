@@ -18,9 +18,11 @@ import torch
 from gymnasium.vector import SyncVectorEnv, VectorWrapper
 
 from drrl.envs.batch import ActionMap, observation_size
+from drrl.envs.registry import lookup
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
+from drrl.train import open_run, trained_center
 
 VIDEO_FORMATS = (".gif", ".mp4")
 INSTALL_MP4 = "writing MP4 needs imageio-ffmpeg: pip install 'drrl[render]' (or write a .gif)"
@@ -124,14 +126,15 @@ def render_run(run_path: Path | str, out: Path | str, *, final: bool = False, se
     ``env_options`` go to ``gymnasium.make`` (Baxter: ``width``, ``height``, ``shadows``)."""
     out = check_video_path(out)
     folder = RunFolder(Path(run_path))
-    config, checkpoint = folder.read_config(), folder.load_checkpoint()
+    config, checkpoint = open_run(folder)
+    env_id = lookup(checkpoint["env_id"]).env_id
     try:
-        env = gymnasium.make(checkpoint["env_id"], render_mode="rgb_array", **env_options)
+        env = gymnasium.make(env_id, render_mode="rgb_array", **env_options)
     except TypeError as error:  # an option this env does not take, e.g. shadows for the cart-pole
-        raise ValueError(f"{checkpoint['env_id']} cannot render with {env_options}: {error}") from None
+        raise ValueError(f"{env_id} cannot render with {env_options}: {error}") from None
     try:
         policy = make_policy(config.policy, observation_size(env.observation_space), ActionMap(env.action_space).size)
-        center = checkpoint["center"] if final else checkpoint["best_center"]
+        center = trained_center(checkpoint, policy, final)
         recording = record_episode(policy, center, env, seed=seed, fps=fps, max_steps=max_steps or config.max_steps)
     finally:
         env.close()
