@@ -1,6 +1,7 @@
 """Bad input is refused with its own message: malformed configs, damaged checkpoints, non-finite env output."""
 
 import json
+import os
 import shutil
 import sys
 
@@ -34,8 +35,20 @@ def train(*args):
     ("binary.toml", b"\x00\xff\xfe garbage", "is not TOML text: byte 1 is not UTF-8"),
     ("list.json", "[1, 2]", "must hold an object of settings (name: value), not a list"),
     ("missing.toml", None, "cannot read config file"),
+    ("device.toml", 'device = "potato"\n', "device: not a torch device; usable here: cpu"),
+    ("meta.toml", 'device = "meta"\n', "device: drrl runs on cpu or cuda"),
+    ("deep.toml", "a = " + "{b = " * 2000 + "1" + "}" * 2000 + "\n", "nests its tables too deeply"),
+    ("huge.toml", "# " + "x" * 2**20 + "\n", "is over 1024 KiB"),
+    ("flag.toml", "model_based = true\n", "model_based: Input should be a valid dictionary"),
+    ("penalty.toml", "[model_based]\ndisagreement_penalty = inf\n", "disagreement_penalty: Input should be a finite"),
+    ("unfold.toml", "[model_based]\nunfold = 1000000000\n", "unfold: Input should be less than or equal to 10000"),
+    ("width.toml", "[model_based]\nhidden = [100000000]\n", "every layer width must be in [1, 65536]"),
+    ("budget.toml", "budget = 1e25\n", "budget: Unable to parse input string as an integer"),
+    ("seed.toml", "seed = 18446744073709551616\n", "seed: Input should be less than or equal to 4294967295"),
+    ("lr.toml", "center_lr = 1e308\n", "center_lr: Input should be less than or equal to 1000000"),
 ])
 def test_malformed_config_files_are_refused_each_with_its_own_message(tmp_path, name, text, message):
+    """Each refused before any work, in one message, without a traceback."""
     path = tmp_path / name
     if isinstance(text, bytes):
         path.write_bytes(text)
@@ -183,3 +196,37 @@ def test_the_ray_backend_without_ray_says_how_to_install_it(tmp_path, monkeypatc
     monkeypatch.delitem(sys.modules, "drrl.rollout.ray", raising=False)
     result = train("cartpole", "--backend", "ray", "--quiet", "--out", str(tmp_path / "run"))
     assert result.exit_code == 2 and 'needs Ray, which is not installed: pip install "drrl[ray]"' in result.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--env", ""], "the environment name is empty"),
+    (["--env", "CartPol-v1"], "did you mean CartPole-v1"),
+    (["--env", "x" * 10_000], "unknown environment 'xxx"),
+    (["cartpole", "--policy", "rnn:٣"], "malformed policy spec 'rnn:٣'"),
+    (["cartpole", "--policy", "mlp:100000000"], "malformed policy spec 'mlp:100000000'"),
+    (["cartpole", "--policy", "mlp:65536,65536", "--popsize", "100000", "--budget", "100000"],
+     "GiB for their weights alone"),
+])
+def test_bad_flags_are_refused_in_one_short_line_before_any_work(tmp_path, args, message):
+    result = train(*args, "--out", str(tmp_path / "run"), "--quiet")
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert len(result.output) < 600 and not (tmp_path / "run").exists()
+
+
+def test_a_config_file_may_start_with_a_byte_order_mark(tmp_path):
+    (tmp_path / "bom.toml").write_bytes("\ufeffpopsize = 8\nbudget = 16\n".encode())
+    result = train("--config", str(tmp_path / "bom.toml"), "--out", str(tmp_path / "run"), "--quiet")
+    assert result.exit_code == 0 and "done: 2 generations" in result.output, result.output
+
+
+def test_a_read_only_run_folder_is_refused_before_any_work(tmp_path):
+    if os.geteuid() == 0:
+        pytest.skip("root may write into a read-only folder")
+    out = tmp_path / "run"
+    out.mkdir()
+    out.chmod(0o500)
+    try:
+        result = train("cartpole", "--out", str(out), "--quiet")
+    finally:
+        out.chmod(0o700)
+    assert result.exit_code == 2 and "is not writable" in result.output, result.output

@@ -91,7 +91,7 @@ def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
 @pytest.mark.parametrize("model_based, message", [
     ({"model_kind": "gru"}, "model_based.model_kind: 'gru' is not one of: rnn, lstm"),
     ({"overshoot": -1}, "model_based.overshoot: Input should be greater than or equal to 0"),
-    ({"hidden": [16, 0]}, "model_based.hidden: every layer width must be >= 1"),
+    ({"hidden": [16, 0]}, "model_based.hidden: every layer width must be in [1, 65536]"),
     ({"ensemble_size": 0}, "model_based.ensemble_size"),
     ({"reward": "guess"}, "model_based.reward: 'guess' is not one of: auto, known, learned"),
     ({"unknown": 1}, "model_based.unknown: Extra inputs are not permitted"),

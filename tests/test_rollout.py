@@ -88,9 +88,11 @@ def test_unsupported_spaces_are_refused_with_the_reason():
         ActionMap(spaces.MultiBinary(3))
 
 
-def test_unknown_env_lists_the_choices():
-    with pytest.raises(ValueError, match=r"unknown environment 'Nope-v9'.*cartpole \(drrl/CartPole-v0\).*Pendulum-v1"):
+def test_unknown_env_names_drrls_own_and_the_closest_ids():
+    with pytest.raises(ValueError, match=r"unknown environment 'Nope-v9'; drrl's own: .*cartpole.*Pendulum-v1"):
         make_batch_env("Nope-v9", 2)
+    with pytest.raises(ValueError, match=r"unknown environment 'Pendulm-v1'; did you mean Pendulum-v1"):
+        make_batch_env("Pendulm-v1", 2)
 
 
 class HugeRewardEnv(gymnasium.Env):

@@ -86,8 +86,8 @@ def train_command(env_name, env_option, config_file, out, quiet, resume_path, ba
         settings = load_config_file(config_file) if config_file else {}
     except ValueError as error:
         raise click.UsageError(str(error)) from None
-    if env_name or env_option:
-        settings["env"] = env_name or env_option
+    if env_name is not None or env_option is not None:
+        settings["env"] = env_name if env_name is not None else env_option
     model_options = pop_model_options(options)
     settings.update({key: value for key, value in options.items() if value is not None})
     settings = with_model_based(settings, model_based, model_options)

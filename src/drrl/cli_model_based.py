@@ -62,7 +62,10 @@ def pop_model_options(options: dict) -> dict:
 def with_model_based(settings: dict, model_based: bool, model_options: dict) -> dict:
     """``settings`` with the world-model options under ``model_based`` (TrainConfig then starts the fields left unset
     from the model-based defaults). Unchanged for a model-free run, which must not get world-model options."""
-    model_based = model_based or settings.get("model_based") is not None
+    table = settings.get("model_based")
+    if table is not None and not isinstance(table, dict):
+        return settings  # TrainConfig says what model_based must be
+    model_based = model_based or table is not None
     if not model_based:
         if model_options:
             names = ", ".join(f"--{name.replace('_', '-')}" for name in MODEL_OPTIONS

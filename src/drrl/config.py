@@ -7,12 +7,14 @@ import json
 import tomllib
 from pathlib import Path
 
+import torch
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings, one_of
 from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 
+MAX_CONFIG_BYTES = 1024 * 1024
 CHOICES = {"search": SEARCHES, "sampler": SAMPLERS, "optimizer": OPTIMIZERS,
            "fitness_shaping": FITNESS_SHAPINGS}  # string settings
 
@@ -39,19 +41,20 @@ class TrainConfig(BaseModel):
     sampler: str = "symmetric"
     optimizer: str = "clipup"
     fitness_shaping: str = "none"
-    popsize: int = Field(8, ge=2, description="candidates per generation")
-    episodes_per_candidate: int = Field(1, ge=1)
-    budget: int = Field(1000, ge=1, description="real training episodes to spend")
-    sigma_init: float = Field(1.0, gt=0)
-    center_lr: float = Field(0.1, gt=0, description="step size of μ (ClipUp's; its max speed is twice it)")
-    sigma_lr: float = Field(0.01, gt=0)
+    popsize: int = Field(8, ge=2, le=1_000_000, description="candidates per generation")
+    episodes_per_candidate: int = Field(1, ge=1, le=10_000)
+    budget: int = Field(1000, ge=1, le=10**9, description="real training episodes to spend")
+    sigma_init: float = Field(1.0, gt=0, le=1e6)
+    center_lr: float = Field(0.1, gt=0, le=1e6, description="step size of μ (ClipUp's; its max speed is twice it)")
+    sigma_lr: float = Field(0.01, gt=0, le=1e6)
     baseline_decay: float = Field(0.1, ge=0, lt=1)
     max_sigma_change: float = Field(0.2, gt=0, lt=1)
-    eval_episodes: int = Field(50, ge=1, description="episodes that measure the centre policy (not training)")
-    eval_every: int = Field(1, ge=1, description="generations between measurements of the centre policy")
-    checkpoint_every: int = Field(10, ge=1, description="generations between checkpoints")
-    max_steps: int | None = Field(None, ge=1, description="cut episodes longer than this")
-    seed: int = Field(0, ge=0)
+    eval_episodes: int = Field(50, ge=1, le=100_000, description="episodes that measure the centre policy "
+                                                                   "(not training)")
+    eval_every: int = Field(1, ge=1, le=10**9, description="generations between measurements of the centre policy")
+    checkpoint_every: int = Field(10, ge=1, le=10**9, description="generations between checkpoints")
+    max_steps: int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
+    seed: int = Field(0, ge=0, le=2**32 - 1)
     device: str = "cpu"
     model_based: ModelBasedSettings | None = Field(None, description="set: model-based PGPE (drrl.model_based)")
 
@@ -59,6 +62,20 @@ class TrainConfig(BaseModel):
     @classmethod
     def _known_choice(cls, value: str, info: ValidationInfo) -> str:
         return one_of(value, CHOICES[info.field_name])
+
+    @field_validator("device")
+    @classmethod
+    def _usable_device(cls, value: str) -> str:
+        usable = "cpu" + (", cuda" if torch.cuda.is_available() else "")
+        try:
+            device = torch.device(value)
+        except (RuntimeError, TypeError):
+            raise ValueError(f"not a torch device; usable here: {usable}") from None
+        if device.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"torch sees no CUDA device here; usable here: {usable}")
+        if device.type not in ("cpu", "cuda"):
+            raise ValueError(f"drrl runs on cpu or cuda; usable here: {usable}")
+        return value
 
     @model_validator(mode="before")
     @classmethod
@@ -92,7 +109,10 @@ def load_config_file(path: Path) -> dict:
     """Read a TOML or JSON config file into a plain dict (validated later, with command-line overrides)."""
     kind = "JSON" if path.suffix == ".json" else "TOML"
     try:
-        text = path.read_text(encoding="utf-8")
+        if path.stat().st_size > MAX_CONFIG_BYTES:
+            raise ValueError(f"config file {path} is over {MAX_CONFIG_BYTES // 1024} KiB; a config holds a few "
+                             f"settings")
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark is allowed
     except OSError as error:
         raise ValueError(f"cannot read config file {path}: {error.strerror}") from None
     except UnicodeDecodeError as error:
@@ -101,6 +121,8 @@ def load_config_file(path: Path) -> dict:
         settings = json.loads(text) if kind == "JSON" else tomllib.loads(text)
     except (json.JSONDecodeError, tomllib.TOMLDecodeError) as error:
         raise ValueError(f"config file {path} is not valid {kind}: {error}") from None
+    except RecursionError:
+        raise ValueError(f"config file {path} nests its tables too deeply to be a drrl config") from None
     if not isinstance(settings, dict):
         raise ValueError(f"config file {path} must hold an object of settings (name: value), not a "
                          f"{type(settings).__name__}")

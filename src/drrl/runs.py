@@ -51,6 +51,8 @@ class RunFolder:
             path.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             raise ValueError(f"cannot make run folder {path}: {error.strerror}; choose another --out") from None
+        if not os.access(path, os.W_OK):
+            raise ValueError(f"run folder {path} is not writable; choose another --out")
         folder = cls(path).claim()
         if any(path.iterdir()):
             folder.release()
@@ -211,10 +213,10 @@ def _check_layout(file: Path) -> None:
     with file.open("rb") as handle:
         start = handle.read(9)
     if start[8:] != b"{":  # a safetensors file: 8 bytes of header length, then the JSON header
-        if start.startswith(PICKLE_STARTS):
-            raise ValueError(f"checkpoint {file} is a pickle or torch.save file; drrl never loads pickles")
         if size < 9:
             raise ValueError(f"checkpoint {file} is {'empty' if size == 0 else f'truncated to {size} bytes'}")
+        if start.startswith(PICKLE_STARTS):
+            raise ValueError(f"checkpoint {file} is a pickle or torch.save file; drrl never loads pickles")
         raise ValueError(f"checkpoint {file} is not a safetensors file (no JSON header after its first 8 bytes)")
     header = int.from_bytes(start[:8], "little")
     if 8 + header > size:

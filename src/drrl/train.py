@@ -8,6 +8,7 @@ resume from their checkpoint to exactly the metrics of an uninterrupted run.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import torch
@@ -41,6 +42,17 @@ def build_search(config: TrainConfig, policy: Policy) -> Search:
                        seed=config.seed, **pgpe)
 
 
+def check_memory(config: TrainConfig, policy: Policy) -> None:
+    """Refuse a population whose weights alone (P candidates and the search's few vectors, float32) would not fit
+    in the memory free now."""
+    needed = 4 * policy.num_params * (config.popsize + 8)
+    free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else None
+    if free is not None and needed > free:
+        raise ValueError(f"{config.popsize} candidates of a {policy.num_params:,}-weight {config.policy} policy need "
+                         f"{needed / 2**30:.1f} GiB for their weights alone, more than the {free / 2**30:.1f} GiB "
+                         f"free; use a smaller policy or popsize")
+
+
 def prepare(config: TrainConfig, backend: str = "local", address: str | None = None,
             workers: int | None = None) -> Setup:
     """Build envs, policy, search, world and backend; bad names, settings or unsupported spaces raise ValueError
@@ -49,6 +61,7 @@ def prepare(config: TrainConfig, backend: str = "local", address: str | None = N
     eval_env = make_batch_env(entry.env_id, config.eval_episodes)
     try:
         policy = build_policy(config, eval_env)
+        check_memory(config, policy)
         search = build_search(config, policy)
         workload = Workload(policy, RegisteredEnv(entry.env_id), config.popsize, config.episodes_per_candidate,
                             config.max_steps)

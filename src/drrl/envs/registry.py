@@ -9,6 +9,7 @@ does not know is any registered Gymnasium id, with an empty entry.
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -65,7 +66,11 @@ def lookup(name: str) -> EnvEntry:
     """The entry for ``name``: an alias such as ``cartpole``, or any registered Gymnasium id."""
     env_id = aliases().get(name, name)
     if env_id not in gymnasium.registry:
-        known = ", ".join(f"{alias} ({target})" for alias, target in aliases().items())
-        raise ValueError(f"unknown environment {name!r}; use an alias: {known}, or a registered Gymnasium id: "
-                         f"{', '.join(sorted(gymnasium.registry))}")
+        if not name.strip():
+            raise ValueError(f"the environment name is empty; drrl's own: {', '.join(aliases())}")
+        close = difflib.get_close_matches(name[:200], [*aliases(), *gymnasium.registry], n=3, cutoff=0.8)
+        hint = f"did you mean {' or '.join(close)}? " if close else ""
+        shown = repr(name) if len(name) <= 60 else repr(name[:57]) + "..."
+        raise ValueError(f"unknown environment {shown}; {hint}drrl's own: {', '.join(aliases())}; or any id "
+                         f"registered with Gymnasium (e.g. Pendulum-v1; gymnasium.pprint_registry() lists them)")
     return ENTRIES.get(env_id, EnvEntry(env_id))

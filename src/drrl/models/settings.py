@@ -15,6 +15,7 @@ from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
 from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS
 
 REWARD_MODES = ("auto", "known", "learned")
+MAX_WIDTH = 65_536  # units in a layer: wider is a typo, and would not fit in memory with its neighbours
 CHOICES = {"model_kind": MODEL_KINDS, "future_inputs": FUTURE_INPUTS, "reward": REWARD_MODES,
            "model_optimizer": MODEL_OPTIMIZERS}  # string settings and what each allows
 
@@ -33,26 +34,26 @@ class ModelBasedSettings(BaseModel):
     could only blur it, while the closed form is exact and free.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    initial_episodes: int = Field(2, ge=1, description="real episodes of the first iteration (explorers μ ± ε)")
-    episodes_per_iteration: int = Field(2, ge=1, description="real episodes of every later iteration (μ, μ ± ε)")
-    generations: int = Field(40, ge=1, description="most PGPE generations inside the model per iteration")
-    patience: int = Field(10, ge=1, description="stop the in-model search when the candidates' mean imagined "
+    initial_episodes: int = Field(2, ge=1, le=1_000_000, description="real episodes of the first iteration (explorers μ ± ε)")
+    episodes_per_iteration: int = Field(2, ge=1, le=1_000_000, description="real episodes of every later iteration (μ, μ ± ε)")
+    generations: int = Field(40, ge=1, le=1_000_000, description="most PGPE generations inside the model per iteration")
+    patience: int = Field(10, ge=1, le=1_000_000, description="stop the in-model search when the candidates' mean imagined "
                                                 "return has not improved over this many generations")
     model_kind: str = "rnn"
     hidden: tuple[int, ...] = Field((64,), min_length=1, description="widths of the stacked layers")
-    ensemble_size: int = Field(1, ge=1)
-    unfold: int = Field(4, ge=1, description="observed steps of a training window (3.3.1)")
-    overshoot: int = Field(16, ge=0, description="steps past them with targets (3.3.2)")
+    ensemble_size: int = Field(1, ge=1, le=1000)
+    unfold: int = Field(4, ge=1, le=10_000, description="observed steps of a training window (3.3.1)")
+    overshoot: int = Field(16, ge=0, le=10_000, description="steps past them with targets (3.3.2)")
     future_inputs: str = "predictions"
     reward: str = "auto"
     disagreement_penalty: float = Field(0.0, ge=0)
     model_optimizer: str = "adam_lambda"
-    model_lr: float = Field(1e-2, gt=0)
-    fit_batch_size: int = Field(128, ge=1)
-    fit_updates: int = Field(1000, ge=1, description="most gradient steps of the first fit")
-    refit_updates: int = Field(400, ge=1, description="most gradient steps of every later fit, which starts from "
+    model_lr: float = Field(1e-2, gt=0, le=1e3)
+    fit_batch_size: int = Field(128, ge=1, le=1_000_000)
+    fit_updates: int = Field(1000, ge=1, le=10**7, description="most gradient steps of the first fit")
+    refit_updates: int = Field(400, ge=1, le=10**7, description="most gradient steps of every later fit, which starts from "
                                                       "the previous model's weights")
 
     @field_validator(*CHOICES)
@@ -63,8 +64,8 @@ class ModelBasedSettings(BaseModel):
     @field_validator("hidden")
     @classmethod
     def _positive_widths(cls, value: tuple[int, ...]) -> tuple[int, ...]:
-        if min(value) < 1:
-            raise ValueError(f"every layer width must be >= 1, got {value}")
+        if min(value) < 1 or max(value) > MAX_WIDTH:
+            raise ValueError(f"every layer width must be in [1, {MAX_WIDTH}], got {value}")
         return value
 
     def fit_settings(self, first: bool, learn_reward: bool) -> FitSettings:

@@ -7,8 +7,9 @@ from drrl.policies.base import Policy
 from drrl.policies.feedforward import linear, mlp, multilinear
 from drrl.policies.recurrent import lstm, rnn
 
+MAX_WIDTH = 65_536
 ACCEPTED_FORMS = ("linear, linear:nobias, multilinear:W[,W...], mlp:W[,W...], rnn:W[,W...], lstm:W[,W...] "
-                  "(W = a positive layer width)")
+                  f"(W = a layer width from 1 to {MAX_WIDTH})")
 POLICY_KINDS = ("linear", "multilinear", "mlp", "rnn", "lstm")
 LAYERED = {"multilinear": multilinear, "mlp": mlp, "rnn": rnn, "lstm": lstm}  # kinds that take layer widths
 
@@ -22,18 +23,19 @@ def make_policy(spec: str, observation_size: int, action_size: int) -> Policy:
         return linear(observation_size, action_size, bias=arguments != "nobias")
     if kind in LAYERED:
         return LAYERED[kind](observation_size, action_size, _widths(spec, arguments))
-    raise ValueError(f"unknown policy kind {kind!r} in {spec!r}; accepted forms: {ACCEPTED_FORMS}")
+    raise ValueError(f"unknown policy kind {kind[:40]!r}; accepted forms: {ACCEPTED_FORMS}")
 
 
 def _widths(spec: str, arguments: str) -> list[int]:
-    try:
-        widths = [int(width) for width in arguments.split(",")]
-    except ValueError:
-        raise _malformed(spec) from None
-    if not widths or min(widths) < 1:
+    words = [word.strip() for word in arguments.split(",")]
+    if not all(word.isascii() and word.isdigit() for word in words):  # int() would read "٣" or "1_0" too
+        raise _malformed(spec)
+    widths = [int(word) for word in words]
+    if min(widths) < 1 or max(widths) > MAX_WIDTH:
         raise _malformed(spec)
     return widths
 
 
 def _malformed(spec: str) -> ValueError:
-    return ValueError(f"malformed policy spec {spec!r}; accepted forms: {ACCEPTED_FORMS}")
+    shown = repr(spec) if len(spec) <= 60 else repr(spec[:57]) + "..."
+    return ValueError(f"malformed policy spec {shown}; accepted forms: {ACCEPTED_FORMS}")
