@@ -146,6 +146,15 @@ def test_non_finite_returns_stop_the_run_name_the_candidate_and_keep_the_folder(
     assert "generation 1: " in result.output and "candidate 0" in result.output
     assert "run folder and checkpoint (generation 0) kept" in result.output
     assert RunFolder(out).load_checkpoint()["iteration"] == 0
+    assert "NonFiniteOutput" in (out / "error.log").read_text()  # the run folder keeps the traceback
+
+
+def test_debug_shows_the_traceback_behind_a_refusal(tmp_path):
+    quiet = CliRunner().invoke(main, ["train", "--env", "Nope-v9", "--out", str(tmp_path / "a")])
+    loud = CliRunner().invoke(main, ["--debug", "train", "--env", "Nope-v9", "--out", str(tmp_path / "b")])
+    assert quiet.exit_code == loud.exit_code == 2
+    assert "Traceback" not in quiet.output and "unknown environment 'Nope-v9'" in quiet.output
+    assert "Traceback" in loud.output and "lookup" in loud.output
 
 
 def test_the_drrl_command_is_installed():

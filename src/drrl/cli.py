@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime
+import traceback
 from pathlib import Path
 
 import click
@@ -23,6 +24,7 @@ from drrl.cli_model_based import compare_command, model_based_options, pop_model
 from drrl.model_based import ModelDiverged
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
+ERROR_LOG = "error.log"  # in the run folder: the traceback of whatever stopped the run
 
 
 def setting(name: str, kind, help: str):
@@ -31,10 +33,25 @@ def setting(name: str, kind, help: str):
     return click.option(f"--{name.replace('_', '-')}", name, type=kind, help=f"{help}  [default: {default}]")
 
 
-@click.group()
+class Commands(click.Group):
+    """drrl's commands: a refusal is one line; with --debug (or DRRL_DEBUG=1) the traceback behind it too."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except click.ClickException as error:
+            if ctx.meta.get("debug") and error.__context__ is not None:
+                traceback.print_exception(error.__context__)
+            raise
+
+
+@click.group(cls=Commands)
 @click.version_option(__version__, prog_name="drrl")
-def main() -> None:
+@click.option("--debug", is_flag=True, envvar="DRRL_DEBUG", help="show the traceback behind an error message")
+@click.pass_context
+def main(ctx: click.Context, debug: bool) -> None:
     """Sample-efficient robot reinforcement learning: PGPE over neural-network policies."""
+    ctx.meta["debug"] = debug
 
 
 @main.command("train")
@@ -139,8 +156,13 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
     except (NonFiniteOutput, ModelDiverged, KeyboardInterrupt) as error:
         done = folder.load_checkpoint()["iteration"]
         why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
+        if not isinstance(error, KeyboardInterrupt):
+            (out / ERROR_LOG).write_text(traceback.format_exc())
         raise click.ClickException(f"{why}\nrun folder and checkpoint ({unit} {done}) kept: {out}\n"
                                    f"continue with: drrl train --resume {out}") from None
+    except Exception:  # not a user's mistake: the traceback shows, and the run folder keeps it
+        (out / ERROR_LOG).write_text(traceback.format_exc())
+        raise
     imagined = (f" ({counters.imagined_episodes} imagined episodes, {counters.imagined_steps} imagined steps apart)"
                 if counters.imagined_episodes else "")
     click.echo(f"done: {counters.iteration} {unit}s, {counters.real_episodes} real episodes, "
