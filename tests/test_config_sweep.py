@@ -1,0 +1,75 @@
+"""A sweep of generated settings and config files: every one is either accepted or refused with a message, never a
+traceback; and every accepted one prepares a run or is refused before any work."""
+
+import math
+import string
+
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pydantic import ValidationError
+
+from drrl.config import TrainConfig, describe_errors, load_config_file
+from drrl.models.settings import ModelBasedSettings
+from drrl.train import prepare
+
+VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=12) | st.sampled_from(["cartpole", "cartpole-po", "Pendulum-v1", "linear", "mlp:4", "rnn:2",
+                                              "cmaes", "symmetric", "reinforce", "cpu", "cuda", "lstm"]),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=8), inner, max_size=3),
+    max_leaves=6)
+PLAUSIBLE = st.one_of(st.integers(0, 64), st.floats(0.001, 3.0), st.sampled_from(
+    ["cartpole", "cartpole-po", "cartpole-swingup", "linear", "linear:nobias", "mlp:4", "rnn:2", "lstm:2", "cmaes",
+     "sep-cmaes", "pgpe", "symmetric", "supersymmetric", "centered_ranks", "adam", "sgd", "lstm", "rnn", "known"]),
+    VALUES)  # three parts in four near what a user writes, one part anything
+FIELDS = st.sampled_from([*TrainConfig.model_fields, "model_based.hidden", "model_based.unfold",
+                          "model_based.reward", "model_based.generations", "popsise", "model-based"])
+
+
+@st.composite
+def setting_dicts(draw):
+    chosen = {}
+    for name in draw(st.lists(FIELDS, max_size=4, unique=True)):
+        if name.startswith("model_based."):
+            table = chosen.setdefault("model_based", {})
+            if isinstance(table, dict):
+                table[name.split(".", 1)[1]] = draw(PLAUSIBLE)
+        else:
+            chosen[name] = draw(PLAUSIBLE)
+    return chosen
+
+
+def small(config: TrainConfig) -> bool:
+    """Cheap enough to build here: the envs of a generation and of the measurements."""
+    return config.popsize * config.episodes_per_candidate <= 256 and config.eval_episodes <= 256
+
+
+@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(setting_dicts())
+def test_generated_settings_are_accepted_or_refused_with_a_message(chosen):
+    try:
+        config = TrainConfig.model_validate(chosen)
+    except ValidationError as error:
+        message = describe_errors(error)
+        assert message and "Traceback" not in message
+        return
+    assert all(math.isfinite(value) for value in (config.sigma_init, config.center_lr, config.sigma_lr))
+    assert config.model_based is None or isinstance(config.model_based, ModelBasedSettings)
+    if small(config):
+        try:
+            prepare(config).close()
+        except ValueError as error:  # an unknown env or policy, a space drrl cannot use: before any work
+            assert str(error)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(alphabet=string.printable + "\ufeff=[]{}\"'", max_size=200), st.sampled_from([".toml", ".json"]))
+def test_generated_config_files_are_read_or_refused_with_a_message(tmp_path_factory, text, suffix):
+    path = tmp_path_factory.mktemp("config") / f"settings{suffix}"
+    path.write_text(text)
+    try:
+        settings_read = load_config_file(path)
+    except ValueError as error:
+        assert str(path) in str(error)
+        return
+    assert isinstance(settings_read, dict)
