@@ -144,3 +144,11 @@ def page_faults(mode):
 def test_retained_memory_stops_rollout_steps_from_faulting_their_pages_in_again():
     assert page_faults("default") > 2000  # glibc gives the arrays back and faults them in again every step
     assert page_faults("retain") < 200
+
+
+def test_an_env_whose_dependency_is_missing_is_refused_with_the_pip_extra(monkeypatch):
+    for name in [name for name in sys.modules if name.startswith("gymnasium.envs.box2d")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "Box2D", None)  # as if gymnasium[box2d] were not installed
+    with pytest.raises(ValueError, match=r'LunarLander-v3 cannot be made here: .*pip install "gymnasium\[box2d\]"'):
+        make_batch_env("LunarLander-v3", 2)

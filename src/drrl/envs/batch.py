@@ -46,7 +46,10 @@ def make_batch_env(name: str, num_envs: int) -> VectorEnv:
     """``num_envs`` copies of env ``name`` stepping together; raises before any work on unsupported spaces."""
     env_id = resolve_env_id(name)
     mode = "vector_entry_point" if env_id.startswith("drrl/") else "sync"
-    env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode)
+    try:
+        env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode)
+    except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
+        raise ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}") from None
     try:
         observation_size(env.single_observation_space)
         ActionMap(env.single_action_space)
@@ -54,6 +57,16 @@ def make_batch_env(name: str, num_envs: int) -> VectorEnv:
         env.close()
         raise
     return env
+
+
+def missing_dependency(env_id: str, error: Exception) -> str:
+    """What is missing to make ``env_id``, and the pip command that installs it where Gymnasium names one."""
+    entry_point = str(gymnasium.spec(env_id).entry_point)
+    family = next((name for name in ("mujoco", "box2d", "atari") if f".{name}." in f".{entry_point}."), None)
+    hint = f'; pip install "gymnasium[{family}]"' if family else ""
+    if isinstance(error, ModuleNotFoundError):
+        return f"its module {error.name!r} is not installed{hint}"
+    return f"{error}{hint if 'pip install' not in str(error) else ''}"
 
 
 def observation_size(space: spaces.Space) -> int:
