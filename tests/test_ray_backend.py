@@ -4,6 +4,7 @@ import csv
 import os
 import signal
 import threading
+import time
 
 import pytest
 import torch
@@ -79,3 +80,14 @@ def test_a_killed_worker_s_chunk_runs_again_and_the_numbers_do_not_change(backen
     with pytest.warns(UserWarning, match="a Ray worker died while evaluating candidates 0–50"):
         result = remote.evaluate(params, seed=5)
     assert remote.lost == 1 and same(result, expected)
+
+
+def test_a_cluster_address_nothing_answers_at_is_refused_at_once():
+    from drrl.rollout.ray import _check_reachable
+
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=r"nothing answers at the Ray cluster address 127.0.0.1:1 .*ray start --head"):
+        _check_reachable("127.0.0.1:1")
+    assert time.perf_counter() - start < 10  # Ray's own retries take many minutes
+    with pytest.raises(ValueError, match=r"--address 'somewhere' is not HOST:PORT"):
+        _check_reachable("somewhere")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import warnings
 
 import numpy as np
@@ -24,6 +25,7 @@ from drrl.rollout.memory import retain_freed_memory
 INSTALL_HINT = '--backend ray needs Ray, which is not installed: pip install "drrl[ray]"'
 MAX_ATTEMPTS = 4  # runs of one chunk in one generation before the run gives up
 START_TIMEOUT = 120  # seconds for the actors to start
+CONNECT_TIMEOUT = 10  # seconds for a cluster address to answer
 
 try:
     import ray
@@ -74,6 +76,7 @@ class RayBackend:
         self.workload = workload
         self._owns_ray = not ray.is_initialized()
         if self._owns_ray:
+            _check_reachable(address)
             try:
                 ray.init(address=address, include_dashboard=False, logging_level=logging.WARNING)
             except ConnectionError as error:
@@ -144,3 +147,18 @@ class RayBackend:
         self.workers = []
         if self._owns_ray:
             ray.shutdown()
+
+
+def _check_reachable(address: str | None) -> None:
+    """Refuse a cluster address nothing answers at, within :data:`CONNECT_TIMEOUT` seconds: Ray itself keeps
+    retrying for many minutes."""
+    if address is None or address == "auto":
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not port.isdigit():
+        raise ValueError(f"--address {address!r} is not HOST:PORT (e.g. 10.0.0.1:6379)")
+    try:
+        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT).close()
+    except OSError as error:
+        raise ValueError(f"nothing answers at the Ray cluster address {address} ({error.strerror or error}); is "
+                         f"the cluster up (ray start --head)?") from None
