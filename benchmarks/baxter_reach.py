@@ -1,7 +1,7 @@
 """Real training episodes until the centre policy reaches Baxter's target (thesis 5.2, reward 5.10).
 
-For each seed, drrl's training loop (``drrl.loop.run``, what ``drrl.train.train`` runs) spends a budget of real episodes on
-PGPE over a Baxter reach env. Every ``--probe-every`` generations the centre policy μ runs ``--eval-episodes`` fresh
+For each seed, drrl's training loop (``drrl.loop.run``, what ``drrl.train.train`` runs) spends a budget of real
+episodes on PGPE over a Baxter reach env. Every ``--probe-every`` generations the centre policy μ runs ``--eval-episodes`` fresh
 episodes (counted apart, never as training), and we record the fraction that end with the end-point(s) within
 0.05 m of the target(s) and not failed. Prints, per seed, the real episodes and training wall time when μ first
 reached ``--goal`` (95 % for a fixed target) and the final fraction; then medians over seeds.

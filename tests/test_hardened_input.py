@@ -46,6 +46,7 @@ def train(*args):
     ("budget.toml", "budget = 1e25\n", "budget: Unable to parse input string as an integer"),
     ("seed.toml", "seed = 18446744073709551616\n", "seed: Input should be less than or equal to 4294967295"),
     ("lr.toml", "center_lr = 1e308\n", "center_lr: Input should be less than or equal to 1000000"),
+    ("nested.toml", "[model_based]\nunfoldd = 3\n", "model_based.unfoldd: not a setting (did you mean unfold?)"),
 ])
 def test_malformed_config_files_are_refused_each_with_its_own_message(tmp_path, name, text, message):
     """Each refused before any work, in one message, without a traceback."""
@@ -159,7 +160,8 @@ def test_eval_and_render_refuse_what_resume_refuses(tmp_path, finished, damage, 
     out = tmp_path / "run"
     shutil.copytree(finished, out)
     spoil(RunFolder(out))
-    result = CliRunner().invoke(main, [command, str(out), *(["--out", str(tmp_path / "x.gif")] * (command == "render"))])
+    video = ["--out", str(tmp_path / "x.gif")] if command == "render" else []
+    result = CliRunner().invoke(main, [command, str(out), *video])
     assert result.exit_code == 1 and message in result.output, result.output
     assert "Traceback" not in result.output and not (tmp_path / "x.gif").exists()
 
@@ -203,6 +205,7 @@ def test_the_ray_backend_without_ray_says_how_to_install_it(tmp_path, monkeypatc
     (["--env", "CartPol-v1"], "did you mean CartPole-v1"),
     (["--env", "x" * 10_000], "unknown environment 'xxx"),
     (["cartpole", "--policy", "rnn:٣"], "malformed policy spec 'rnn:٣'"),
+    (["cartpole", "--popsize", "٨"], "'٨' is not a whole number in the digits 0-9"),
     (["cartpole", "--policy", "mlp:100000000"], "malformed policy spec 'mlp:100000000'"),
     (["cartpole", "--policy", "mlp:65536,65536", "--popsize", "100000", "--budget", "100000"],
      "GiB for their weights alone"),

@@ -94,7 +94,7 @@ def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
     ({"hidden": [16, 0]}, "model_based.hidden: every layer width must be in [1, 65536]"),
     ({"ensemble_size": 0}, "model_based.ensemble_size"),
     ({"reward": "guess"}, "model_based.reward: 'guess' is not one of: auto, known, learned"),
-    ({"unknown": 1}, "model_based.unknown: Extra inputs are not permitted"),
+    ({"unknown": 1}, "model_based.unknown: not a setting; the settings are: initial_episodes"),
 ])
 def test_model_based_settings_are_validated_with_field_value_and_choices(model_based, message):
     from drrl.config import describe_errors

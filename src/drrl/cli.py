@@ -20,11 +20,14 @@ from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.train import build_policy, open_run, prepare, prepare_resume, subscribers, trained_center
+from drrl.cli_params import INTEGER
 from drrl.cli_model_based import compare_command, model_based_options, pop_model_options, with_model_based
 from drrl.model_based import ModelDiverged
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
 ERROR_LOG = "error.log"  # in the run folder: the traceback of whatever stopped the run
+
+
 
 
 def setting(name: str, kind, help: str):
@@ -56,22 +59,23 @@ def main(ctx: click.Context, debug: bool) -> None:
 
 @main.command("train")
 @click.argument("env_name", required=False, metavar="[ENV]")
-@click.option("--env", "env_option", help=f"Environment: {', '.join(aliases())} or any Gymnasium id (e.g. Pendulum-v1).")
+@click.option("--env", "env_option",
+              help=f"Environment: {', '.join(aliases())} or any Gymnasium id (e.g. Pendulum-v1).")
 @setting("policy", str, ACCEPTED_FORMS)
 @setting("search", click.Choice(SEARCHES), "search: PGPE (the thesis), or CMA-ES with a full or diagonal covariance")
 @setting("sampler", click.Choice(SAMPLERS), "PGPE sampler")
 @setting("optimizer", click.Choice(OPTIMIZERS), "step rule for μ")
 @setting("fitness_shaping", click.Choice(FITNESS_SHAPINGS), "fitness shaping")
-@setting("popsize", int, "candidates per generation")
-@setting("episodes_per_candidate", int, "real episodes per candidate")
-@setting("budget", int, "real training episodes to spend")
+@setting("popsize", INTEGER, "candidates per generation")
+@setting("episodes_per_candidate", INTEGER, "real episodes per candidate")
+@setting("budget", INTEGER, "real training episodes to spend")
 @setting("sigma_init", float, "initial σ of every parameter")
 @setting("center_lr", float, "step size of μ")
 @setting("sigma_lr", float, "learning rate of σ")
-@setting("eval_episodes", int, "episodes measuring the centre policy")
-@setting("eval_every", int, "generations between measurements")
-@setting("seed", int, "random seed")
-@setting("checkpoint_every", int, "generations between checkpoints")
+@setting("eval_episodes", INTEGER, "episodes measuring the centre policy")
+@setting("eval_every", INTEGER, "generations between measurements")
+@setting("seed", INTEGER, "random seed")
+@setting("checkpoint_every", INTEGER, "generations between checkpoints")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
               help="TOML or JSON file of settings; command-line options override it.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), help="run folder  [default: runs/ENV-TIME]")
@@ -180,7 +184,7 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
 @main.command("eval")
 @click.argument("run_path", metavar="RUN", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=INTEGER, default=0, show_default=True)
 @click.option("--final", is_flag=True, help="the last centre policy instead of the best measured one")
 def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
     """Run a trained centre policy over fresh episodes and report how it does.
@@ -217,7 +221,7 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
 @click.argument("run_path", metavar="RUN", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=Path("episode.gif"),
               show_default=True, help="video file: .gif, or .mp4 (needs drrl[render])")
-@click.option("--seed", type=int, default=0, show_default=True, help="the episode's reset seed")
+@click.option("--seed", type=INTEGER, default=0, show_default=True, help="the episode's reset seed")
 @click.option("--final", is_flag=True, help="the last centre policy instead of the best measured one")
 @click.option("--fps", type=click.IntRange(min=1), default=25, show_default=True, help="video frames per second")
 @click.option("--max-steps", type=click.IntRange(min=1), help="stop the episode after this many steps")

@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 from pydantic import ValidationError
 
+from drrl.cli_params import INTEGER
 from drrl.compare import METHODS, compare
 from drrl.config import TrainConfig, describe_errors, load_config_file
 from drrl.models.recurrent import MODEL_KINDS
@@ -35,10 +36,11 @@ def model_based_options(command):
                      help=f"world model: state-space RNN (3.4) or LSTM (3.5.2)  [default: {_default('model_kind')}]"),
         click.option("--model-hidden", metavar="W[,W...]",
                      help="widths of the world model's stacked layers  [default: 64]"),
-        click.option("--overshoot", type=int, help=f"overshooting steps (3.3.2)  [default: {_default('overshoot')}]"),
-        click.option("--ensemble", type=int, help=f"world models in the ensemble  [default: "
+        click.option("--overshoot", type=INTEGER,
+                     help=f"overshooting steps (3.3.2)  [default: {_default('overshoot')}]"),
+        click.option("--ensemble", type=INTEGER, help=f"world models in the ensemble  [default: "
                                                   f"{_default('ensemble_size')}]"),
-        click.option("--generations", type=int, help=f"most PGPE generations in the model per iteration  "
+        click.option("--generations", type=INTEGER, help=f"most PGPE generations in the model per iteration  "
                                                       f"[default: {_default('generations')}]"),
     ]
     for option in reversed(options):

@@ -135,15 +135,20 @@ def describe_errors(error: ValidationError) -> str:
     for item in error.errors():
         field = ".".join(str(part) for part in item["loc"]) or "config"
         message = item["msg"].removeprefix("Value error, ")
-        if item["type"] == "extra_forbidden" and len(item["loc"]) == 1:
-            message = _unknown_setting(str(item["loc"][0]))
-        given = f" (got {item['input']!r})" if item["loc"] else ""
+        if item["type"] == "extra_forbidden" and item["loc"][:-1] in ((), ("model_based",)):
+            table = TrainConfig if len(item["loc"]) == 1 else ModelBasedSettings
+            message = _unknown_setting(str(item["loc"][-1]), list(table.model_fields))
+        given = f" (got {_short(item['input'])})" if item["loc"] else ""
         lines.append(f"{field}: {message}{given}")
     return "\n".join(lines)
 
 
-def _unknown_setting(name: str) -> str:
-    known = list(TrainConfig.model_fields)
+def _unknown_setting(name: str, known: list[str]) -> str:
     close = difflib.get_close_matches(name, known, n=1)
     return (f"not a setting{f' (did you mean {close[0]}?)' if close else ''}; the settings are: "
             f"{', '.join(known)}")
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."

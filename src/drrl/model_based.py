@@ -53,8 +53,8 @@ class ModelDiverged(RuntimeError):
 class ModelBased(World):
     """Real episodes feed a world model; the search's generations run inside it, through ``backend``.
 
-    Each iteration runs on one torch thread: the model's matrices are small (batches of a few hundred rows, widths of tens), so a
-    second thread costs more in hand-offs than it gains, and leaves the other core to the machine.
+    Each iteration runs on one torch thread: the model's matrices are small (batches of a few hundred rows, widths
+    of tens), so a second thread costs more in hand-offs than it gains, and leaves the other core to the machine.
     """
 
     kind, unit = "model-based", "iteration"

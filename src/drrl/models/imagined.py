@@ -4,11 +4,11 @@ Every sub-environment starts from a real start observation drawn from the buffer
 drawn for that episode, and then lives in the model: each step feeds the current (predicted) observation and the
 policy's action to the model, which is dynamical consistency (3.3.3) at imagination time. Rewards and ends come
 either from the task's reward in closed form applied to the predicted observations (``known_reward``, e.g. the
-thesis's 5.8, from drrl's environment registry) or from the model's reward and end heads. Nothing here touches the real environment: imagined
-steps cost no real samples, and the training loop counts them apart.
+thesis's 5.8, from drrl's environment registry) or from the model's reward and end heads. Nothing here touches the
+real environment: imagined steps cost no real samples, and the training loop counts them apart.
 
-Episode seeds (``reset(seed=[...])``, one per sub-environment) fix each episode's start and member, so candidates
-of one PGPE generation are compared on the same imagined starts, as they are on real ones.
+Episode seeds (``reset(seed=[...])``, one per sub-environment) fix each episode's start and member, so candidates of
+one PGPE generation are compared on the same imagined starts, as they are on real ones.
 """
 
 from __future__ import annotations
@@ -49,8 +49,8 @@ class ImaginedWorld:
     def of(cls, model: LearnedModel, start_observations: np.ndarray, action_space: spaces.Space, horizon: int,
            known_reward: RewardFunction | None = None, disagreement_penalty: float = 0.0) -> ImaginedWorld:
         state = {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
-        return cls(type(model), model.settings(), state, np.asarray(start_observations, dtype=np.float32), action_space, horizon,
-                   known_reward, disagreement_penalty)
+        return cls(type(model), model.settings(), state, np.asarray(start_observations, dtype=np.float32),
+                   action_space, horizon, known_reward, disagreement_penalty)
 
     def make(self, num_envs: int) -> ImaginedEnv:
         with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace

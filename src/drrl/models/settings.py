@@ -36,11 +36,14 @@ class ModelBasedSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    initial_episodes: int = Field(2, ge=1, le=1_000_000, description="real episodes of the first iteration (explorers μ ± ε)")
-    episodes_per_iteration: int = Field(2, ge=1, le=1_000_000, description="real episodes of every later iteration (μ, μ ± ε)")
+    initial_episodes: int = Field(2, ge=1, le=1_000_000,
+                                  description="real episodes of the first iteration (explorers μ ± ε)")
+    episodes_per_iteration: int = Field(2, ge=1, le=1_000_000,
+                                        description="real episodes of every later iteration (μ, μ ± ε)")
     generations: int = Field(40, ge=1, le=1_000_000, description="most PGPE generations inside the model per iteration")
-    patience: int = Field(10, ge=1, le=1_000_000, description="stop the in-model search when the candidates' mean imagined "
-                                                "return has not improved over this many generations")
+    patience: int = Field(10, ge=1, le=1_000_000,
+                          description="stop the in-model search when the candidates' mean imagined return has not "
+                                      "improved over this many generations")
     model_kind: str = "rnn"
     hidden: tuple[int, ...] = Field((64,), min_length=1, description="widths of the stacked layers")
     ensemble_size: int = Field(1, ge=1, le=1000)
@@ -53,8 +56,8 @@ class ModelBasedSettings(BaseModel):
     model_lr: float = Field(1e-2, gt=0, le=1e3)
     fit_batch_size: int = Field(128, ge=1, le=1_000_000)
     fit_updates: int = Field(1000, ge=1, le=10**7, description="most gradient steps of the first fit")
-    refit_updates: int = Field(400, ge=1, le=10**7, description="most gradient steps of every later fit, which starts from "
-                                                      "the previous model's weights")
+    refit_updates: int = Field(400, ge=1, le=10**7, description="most gradient steps of every later fit, which "
+                                                                "starts from the previous model's weights")
 
     @field_validator(*CHOICES)
     @classmethod
