@@ -209,3 +209,21 @@ def test_a_run_folder_belongs_to_one_process_and_a_killed_ones_folder_is_taken_o
         process.kill()
         process.wait()
     RunFolder(out).claim().release()  # the killed process's hold went with it
+
+
+def test_a_full_disk_stops_the_run_in_one_line_and_keeps_the_last_checkpoint(tmp_path, monkeypatch):
+    saves = []
+    original = RunFolder.save_checkpoint
+
+    def save_until_full(folder, state):
+        saves.append(state["iteration"])
+        if state["iteration"] >= 2:
+            raise OSError(28, "No space left on device", str(folder.path / "checkpoint.safetensors.tmp"))
+        original(folder, state)
+
+    monkeypatch.setattr(RunFolder, "save_checkpoint", save_until_full)
+    result, out = train(tmp_path, "cartpole", *SMALL, "--checkpoint-every", "2")
+    assert result.exit_code == 1 and "No space left on device" in result.output, result.output
+    assert "Traceback" not in result.output and "drrl train --resume" in result.output
+    monkeypatch.setattr(RunFolder, "save_checkpoint", original)
+    assert RunFolder(out).load_checkpoint()["iteration"] == 0  # the checkpoint written before the disk filled

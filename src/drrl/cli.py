@@ -164,6 +164,10 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
             (out / ERROR_LOG).write_text(traceback.format_exc())
         raise click.ClickException(f"{why}\nrun folder and checkpoint ({unit} {done}) kept: {out}\n"
                                    f"continue with: drrl train --resume {out}") from None
+    except OSError as error:  # a full disk, a folder removed under the run: what was written before is kept
+        raise click.ClickException(f"cannot write {error.filename or 'to the run folder'}: {error.strerror or error}; "
+                                   f"{out} keeps what was written before; free space, then: drrl train --resume "
+                                   f"{out}") from None
     except Exception:  # not a user's mistake: the traceback shows, and the run folder keeps it
         (out / ERROR_LOG).write_text(traceback.format_exc())
         raise
