@@ -208,7 +208,7 @@ def test_the_ray_backend_without_ray_says_how_to_install_it(tmp_path, monkeypatc
     (["cartpole", "--popsize", "٨"], "'٨' is not a whole number in the digits 0-9"),
     (["cartpole", "--policy", "mlp:100000000"], "malformed policy spec 'mlp:100000000'"),
     (["cartpole", "--policy", "mlp:65536,65536", "--popsize", "100000", "--budget", "100000"],
-     "GiB for their weights alone"),
+     "GiB (100000 candidates of a 4,295,426,049-weight mlp:65536,65536 policy"),
 ])
 def test_bad_flags_are_refused_in_one_short_line_before_any_work(tmp_path, args, message):
     result = train(*args, "--out", str(tmp_path / "run"), "--quiet")
@@ -233,3 +233,12 @@ def test_a_read_only_run_folder_is_refused_before_any_work(tmp_path):
     finally:
         out.chmod(0o700)
     assert result.exit_code == 2 and "is not writable" in result.output, result.output
+
+
+@pytest.mark.parametrize("args", [["--eval-episodes", "100000", "--popsize", "1000000", "--episodes-per-candidate",
+                                   "1000", "--budget", "1000000000"],
+                                  ["--model-based", "--model-hidden", "65536,65536", "--ensemble", "1000"]])
+def test_a_run_too_big_for_memory_is_refused_before_any_work(tmp_path, args):
+    result = train("cartpole", *args, "--out", str(tmp_path / "run"), "--quiet")
+    assert result.exit_code == 2 and "GiB free; use a smaller policy, popsize or model" in result.output, result.output
+    assert not (tmp_path / "run").exists()

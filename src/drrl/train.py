@@ -42,15 +42,30 @@ def build_search(config: TrainConfig, policy: Policy) -> Search:
                        seed=config.seed, **pgpe)
 
 
-def check_memory(config: TrainConfig, policy: Policy) -> None:
-    """Refuse a population whose weights alone (P candidates and the search's few vectors, float32) would not fit
-    in the memory free now."""
+def memory_needed(config: TrainConfig, policy: Policy) -> int:
+    """A lower bound on the bytes a run holds at once: the candidates' weights and the search's vectors, a
+    rollout's observation and action arrays (a few temporaries each), and a world model's weights and the
+    imagined episodes' states. The environments' own state comes on top."""
+    slots = config.popsize * config.episodes_per_candidate
     needed = 4 * policy.num_params * (config.popsize + 8)
+    needed += 8 * 8 * (slots + config.eval_episodes) * (policy.observation_size + policy.action_size)
+    if config.model_based is not None:
+        model, widths = config.model_based, config.model_based.hidden
+        inputs = policy.observation_size + policy.action_size
+        weights = sum((fan_in + width) * 4 * width for fan_in, width in zip((inputs, *widths), widths))
+        needed += 4 * model.ensemble_size * (4 * weights + 2 * slots * sum(widths))  # Adam's moments, states
+    return needed
+
+
+def check_memory(config: TrainConfig, policy: Policy) -> None:
+    """Refuse, before any work, a run that could not fit in the memory free now."""
+    needed = memory_needed(config, policy)
     free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else None
     if free is not None and needed > free:
-        raise ValueError(f"{config.popsize} candidates of a {policy.num_params:,}-weight {config.policy} policy need "
-                         f"{needed / 2**30:.1f} GiB for their weights alone, more than the {free / 2**30:.1f} GiB "
-                         f"free; use a smaller policy or popsize")
+        raise ValueError(f"this run needs at least {needed / 2**30:.1f} GiB ({config.popsize} candidates of a "
+                         f"{policy.num_params:,}-weight {config.policy} policy, their episodes"
+                         f"{', the world model' if config.model_based else ''}), more than the {free / 2**30:.1f} "
+                         f"GiB free; use a smaller policy, popsize or model")
 
 
 def prepare(config: TrainConfig, backend: str = "local", address: str | None = None,
@@ -58,10 +73,14 @@ def prepare(config: TrainConfig, backend: str = "local", address: str | None = N
     """Build envs, policy, search, world and backend; bad names, settings or unsupported spaces raise ValueError
     here, before any work."""
     entry = lookup(config.env)
+    probe = make_batch_env(entry.env_id, 1)  # its spaces size the policy before anything big is made
+    try:
+        policy = build_policy(config, probe)
+        check_memory(config, policy)
+    finally:
+        probe.close()
     eval_env = make_batch_env(entry.env_id, config.eval_episodes)
     try:
-        policy = build_policy(config, eval_env)
-        check_memory(config, policy)
         search = build_search(config, policy)
         workload = Workload(policy, RegisteredEnv(entry.env_id), config.popsize, config.episodes_per_candidate,
                             config.max_steps)
