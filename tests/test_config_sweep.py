@@ -73,3 +73,31 @@ def test_generated_config_files_are_read_or_refused_with_a_message(tmp_path_fact
         assert str(path) in str(error)
         return
     assert isinstance(settings_read, dict)
+
+
+FLAGS = ["--policy", "--search", "--sampler", "--optimizer", "--fitness-shaping", "--popsize",
+         "--episodes-per-candidate", "--budget", "--sigma-init", "--center-lr", "--sigma-lr", "--eval-episodes",
+         "--eval-every", "--seed", "--checkpoint-every", "--model-based", "--model-kind", "--model-hidden",
+         "--overshoot", "--ensemble", "--generations", "--backend", "--workers", "--env", "--bogus"]
+FLAG_VALUES = st.one_of(st.integers(-3, 300).map(str), st.floats(allow_nan=True).map(str), st.text(max_size=8),
+                        st.sampled_from(["cartpole", "mlp:4", "rnn:2", "cmaes", "8", "0.1", "٨", "", "1e308"]))
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.sampled_from(FLAGS), FLAG_VALUES), max_size=4))
+def test_generated_flags_start_a_run_or_are_refused_in_one_message(tmp_path_factory, flags):
+    import drrl.cli
+    from click.testing import CliRunner
+
+    prepared = []
+    original = drrl.cli.run_and_report
+    drrl.cli.run_and_report = lambda setup, folder, attached, counters=None: prepared.append(setup.close())
+    try:
+        args = [part for flag, value in flags for part in ((flag,) if flag == "--model-based" else (flag, value))]
+        out = tmp_path_factory.mktemp("flags") / "run"
+        result = CliRunner().invoke(drrl.cli.main, ["train", *args, "--out", str(out), "--quiet"])
+    finally:
+        drrl.cli.run_and_report = original
+    assert result.exit_code in (0, 2), (args, result.output, result.exception)
+    assert result.exit_code == 0 or (isinstance(result.exception, SystemExit) and "Error" in result.output), args
+    assert (result.exit_code == 0) == bool(prepared), args
