@@ -1,8 +1,9 @@
 import pytest
 import torch
+from safetensors.torch import save_file
 
 from drrl.config import TrainConfig
-from drrl.runs import CHECKPOINT, RunFolder
+from drrl.runs import CHECKPOINT, RunFolder, _digest
 
 
 def test_checkpoint_round_trip_keeps_tensors_values_and_key_types(tmp_path):
@@ -59,3 +60,13 @@ def test_a_checkpoint_whose_header_length_looks_like_a_pickle_still_loads(tmp_pa
         pytest.fail("no padding gave the wanted first byte")
     loaded = folder.load_checkpoint()
     assert loaded["pad"] == state["pad"] and torch.equal(loaded["center"], state["center"])
+
+
+def test_a_checkpoint_nested_too_deeply_is_refused_with_a_message(tmp_path):
+    folder = RunFolder(tmp_path)
+    state = "{}"
+    for _ in range(3000):
+        state = '{"items": [["x", ' + state + ']]}'
+    save_file({}, tmp_path / CHECKPOINT, metadata={"state": state, "sha256": _digest(state, {})})
+    with pytest.raises(ValueError, match="nests its state too deeply"):
+        folder.load_checkpoint()

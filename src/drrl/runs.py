@@ -203,6 +203,8 @@ def read_checkpoint(file: Path) -> dict[str, Any]:
         raise ValueError(f"checkpoint {file} is corrupted: its contents do not match their SHA-256 digest")
     try:
         return _decode(json.loads(metadata["state"]), tensors)
+    except RecursionError:
+        raise ValueError(f"checkpoint {file} nests its state too deeply to be a drrl checkpoint") from None
     except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as error:
         raise ValueError(f"checkpoint {file} has a malformed state ({type(error).__name__}: {error})") from None
 
