@@ -227,3 +227,12 @@ def test_a_full_disk_stops_the_run_in_one_line_and_keeps_the_last_checkpoint(tmp
     assert "Traceback" not in result.output and "drrl train --resume" in result.output
     monkeypatch.setattr(RunFolder, "save_checkpoint", original)
     assert RunFolder(out).load_checkpoint()["iteration"] == 0  # the checkpoint written before the disk filled
+
+
+def test_a_nan_environment_stops_a_model_based_run_in_one_message(tmp_path):
+    if "drrl-test/NaNRewardLimited-v0" not in gymnasium.registry:
+        gymnasium.register("drrl-test/NaNRewardLimited-v0", entry_point=NaNRewardEnv, max_episode_steps=5)
+    result, out = train(tmp_path, "--env", "drrl-test/NaNRewardLimited-v0", "--model-based", "--budget", "4",
+                        "--eval-episodes", "2", "--quiet")
+    assert result.exit_code == 1 and "non-finite reward" in result.output, result.output
+    assert "Traceback" not in result.output and "run folder and checkpoint (iteration 0) kept" in result.output
