@@ -152,3 +152,12 @@ def test_an_env_whose_dependency_is_missing_is_refused_with_the_pip_extra(monkey
     monkeypatch.setitem(sys.modules, "Box2D", None)  # as if gymnasium[box2d] were not installed
     with pytest.raises(ValueError, match=r'LunarLander-v3 cannot be made here: .*pip install "gymnasium\[box2d\]"'):
         make_batch_env("LunarLander-v3", 2)
+
+
+def test_close_matches_name_only_envs_that_can_be_made_here(monkeypatch):
+    for name in [name for name in sys.modules if name.startswith("gymnasium.envs.box2d")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "Box2D", None)
+    with pytest.raises(ValueError) as refused:
+        make_batch_env("LunarLandr-v3", 2)
+    assert "unknown environment 'LunarLandr-v3'" in str(refused.value) and "did you mean" not in str(refused.value)

@@ -10,6 +10,7 @@ does not know is any registered Gymnasium id, with an empty entry.
 from __future__ import annotations
 
 import difflib
+import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -62,13 +63,26 @@ def aliases() -> dict[str, str]:
     return {entry.alias: env_id for env_id, entry in ENTRIES.items() if entry.alias}
 
 
+def _can_make(name: str) -> bool:
+    """Whether the module behind a registered id imports here (its dependencies are installed)."""
+    entry_point = gymnasium.spec(aliases().get(name, name)).entry_point
+    if not isinstance(entry_point, str):
+        return True
+    try:
+        importlib.import_module(entry_point.partition(":")[0])
+    except (ImportError, gymnasium.error.DependencyNotInstalled):
+        return False
+    return True
+
+
 def lookup(name: str) -> EnvEntry:
     """The entry for ``name``: an alias such as ``cartpole``, or any registered Gymnasium id."""
     env_id = aliases().get(name, name)
     if env_id not in gymnasium.registry:
         if not name.strip():
             raise ValueError(f"the environment name is empty; drrl's own: {', '.join(aliases())}")
-        close = difflib.get_close_matches(name[:200], [*aliases(), *gymnasium.registry], n=3, cutoff=0.8)
+        close = [match for match in difflib.get_close_matches(name[:200], [*aliases(), *gymnasium.registry], n=5,
+                                                               cutoff=0.8) if _can_make(match)][:3]
         hint = f"did you mean {' or '.join(close)}? " if close else ""
         shown = repr(name) if len(name) <= 60 else repr(name[:57]) + "..."
         raise ValueError(f"unknown environment {shown}; {hint}drrl's own: {', '.join(aliases())}; or any id "
