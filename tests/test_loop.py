@@ -80,13 +80,15 @@ def test_a_stopped_model_based_run_resumes_to_the_uninterrupted_metrics_and_chec
     assert final.keys() == expected.keys() and all(torch.equal(final[key], expected[key]) for key in expected)
 
 
-def test_model_based_on_ray_equals_local_bit_for_bit(tmp_path, one_thread):
+@pytest.mark.parametrize("config", [MODEL_BASED.model_copy(update={"budget": 6}),
+                                    TrainConfig(search="cmaes", budget=48, eval_episodes=4, seed=2)],
+                         ids=["model-based PGPE", "model-free CMA-ES"])
+def test_ray_equals_local_bit_for_bit(tmp_path, one_thread, config):
     pytest.importorskip("ray")
-    config = MODEL_BASED.model_copy(update={"budget": 6})
     train(config, tmp_path / "local")
     train(config, tmp_path / "ray", backend="ray", workers=2)
     assert metrics(tmp_path / "ray") == metrics(tmp_path / "local")
-    assert len(metrics(tmp_path / "local")) == 3
+    assert len(metrics(tmp_path / "local")) == (3 if config.model_based else 6)
 
 
 def test_model_free_cmaes_improves_the_cartpole_and_resumes_exactly(tmp_path):
