@@ -42,3 +42,18 @@ def test_an_mp4_is_written_with_imageio_ffmpeg(tmp_path):
     frames = [np.full((64, 96, 3), 40 * k, dtype=np.uint8) for k in range(5)]
     write_video(frames, tmp_path / "clip.mp4", fps=25)
     assert (tmp_path / "clip.mp4").read_bytes()[4:8] == b"ftyp"  # an MP4 container
+
+
+def test_render_of_an_env_that_needs_pygame_says_what_to_install(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from drrl.cli import main
+
+    out = tmp_path / "run"
+    trained = CliRunner().invoke(main, ["train", "--env", "Pendulum-v1", "--budget", "8", "--eval-episodes", "2",
+                                        "--quiet", "--out", str(out)])
+    assert trained.exit_code == 0, trained.output
+    monkeypatch.setitem(sys.modules, "pygame", None)  # as if gymnasium[classic_control] were not installed
+    result = CliRunner().invoke(main, ["render", str(out), "--out", str(tmp_path / "x.gif")])
+    assert result.exit_code == 1 and 'pip install "gymnasium[classic_control]"' in result.output, result.output
+    assert "Traceback" not in result.output and not (tmp_path / "x.gif").exists()

@@ -17,7 +17,8 @@ import numpy as np
 import torch
 from gymnasium.vector import SyncVectorEnv, VectorWrapper
 
-from drrl.envs.batch import ActionMap, observation_size
+from drrl.envs.baxter.model import import_mujoco
+from drrl.envs.batch import ActionMap, missing_dependency, observation_size
 from drrl.envs.registry import lookup
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
@@ -128,14 +129,20 @@ def render_run(run_path: Path | str, out: Path | str, *, final: bool = False, se
     folder = RunFolder(Path(run_path))
     config, checkpoint = open_run(folder)
     env_id = lookup(checkpoint["env_id"]).env_id
+    if ".mujoco" in str(gymnasium.spec(env_id).entry_point):
+        import_mujoco()  # a headless OpenGL unless MUJOCO_GL says otherwise, before Gymnasium imports MuJoCo
     try:
         env = gymnasium.make(env_id, render_mode="rgb_array", **env_options)
     except TypeError as error:  # an option this env does not take, e.g. shadows for the cart-pole
         raise ValueError(f"{env_id} cannot render with {env_options}: {error}") from None
+    except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
+        raise ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}") from None
     try:
         policy = make_policy(config.policy, observation_size(env.observation_space), ActionMap(env.action_space).size)
         center = trained_center(checkpoint, policy, final)
         recording = record_episode(policy, center, env, seed=seed, fps=fps, max_steps=max_steps or config.max_steps)
+    except (ImportError, gymnasium.error.DependencyNotInstalled) as error:  # drawing needs pygame, say
+        raise ValueError(f"{env_id} cannot draw frames here: {missing_dependency(env_id, error)}") from None
     finally:
         env.close()
     write_video(recording.frames, out, recording.fps)
