@@ -172,3 +172,17 @@ def test_no_import_circle():
 
     for name in graph:
         visit(name)
+
+
+def test_the_model_guard_warns_when_the_model_promises_far_more_than_reality_gives():
+    from drrl.loop import Counters
+    from drrl.subscribers import ModelGuard
+
+    said = []
+    guard = ModelGuard(say=said.append)
+    counters = Counters(iteration=3)
+    guard.row(None, counters, {"imagined_center_return": 654.0, "center_return": 4.6})  # a model being exploited
+    guard.row(None, counters, {"imagined_center_return": -184.4, "center_return": -322.7})  # a pessimistic one
+    guard.row(None, counters, {"imagined_center_return": -40.0, "center_return": -45.0})  # one that is right
+    guard.row(None, counters, {"center_return": -45.0})  # a model-free row
+    assert guard.warned == 1 and "promised the centre 654.0, reality gave 4.6" in said[0]

@@ -2,7 +2,8 @@
 
 * :class:`RunFolderWriter`: config.json, a metrics.csv row per step, checkpoints, the learning curve at the end;
 * :class:`ProgressBar`: real episodes spent, with the step's returns (tqdm);
-* :class:`TensorBoardLogger`: every metric against real training episodes (``drrl[tensorboard]``).
+* :class:`TensorBoardLogger`: every metric against real training episodes (``drrl[tensorboard]``);
+* :class:`ModelGuard`: a warning when the world model promises the centre far more than reality gives it.
 
 A subscriber overrides any of :class:`drrl.loop.Subscriber`'s ``started``, ``row``, ``checkpoint`` and ``ended``;
 a benchmark attaches its own probe the same way.
@@ -93,3 +94,23 @@ class TensorBoardLogger(Subscriber):
 
     def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
         self.writer.close()
+
+
+class ModelGuard(Subscriber):
+    """Warns when a model-based iteration's centre earns far less in reality than in the model: the search has
+    found the model's errors rather than a better policy (the curse of model bias, thesis 2.3). "Far": the
+    imagined return exceeds the real one by more than ``tolerance`` of the larger of the two in size."""
+
+    def __init__(self, tolerance: float = 0.5, say=tqdm.write):
+        self.tolerance, self.say = tolerance, say
+        self.warned = 0
+
+    def row(self, setup: Setup, counters: Counters, row: dict) -> None:
+        promised, real = row.get("imagined_center_return"), row["center_return"]
+        if promised is None or math.isnan(real) or promised - real <= self.tolerance * max(abs(promised), abs(real)):
+            return
+        self.warned += 1
+        self.say(f"warning: iteration {counters.iteration}: the world model promised the centre {promised:.1f}, "
+                 f"reality gave {real:.1f}; the search is exploiting the model's errors. Try an ensemble "
+                 f"(--ensemble 5) with a disagreement penalty, a larger model, or more real episodes per iteration")
+

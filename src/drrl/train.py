@@ -23,7 +23,7 @@ from drrl.policies import Policy, make_policy
 from drrl.rollout import Workload, make_backend
 from drrl.runs import RunFolder
 from drrl.search import Search, make_search
-from drrl.subscribers import ProgressBar, RunFolderWriter, TensorBoardLogger
+from drrl.subscribers import ModelGuard, ProgressBar, RunFolderWriter, TensorBoardLogger
 
 
 def build_policy(config: TrainConfig, env) -> Policy:
@@ -140,8 +140,9 @@ def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> tor
 
 
 def subscribers(folder: RunFolder | None, progress: bool, tensorboard: bool = False) -> list[Subscriber]:
-    """The run folder's writer (if a folder is given), the progress bar and TensorBoard (into the run folder)."""
-    attached: list[Subscriber] = []
+    """The model's guard (model-based runs), the run folder's writer (if a folder is given), the progress bar and
+    TensorBoard (into the run folder)."""
+    attached: list[Subscriber] = [ModelGuard()]
     if folder is not None:
         attached.append(RunFolderWriter(folder))
         if tensorboard:
