@@ -259,3 +259,19 @@ def test_compare_configs_keep_shared_settings_and_set_each_method():
     model_based = method_config(MODEL_BASED, 1, 10, settings)
     assert model_based.model_based.hidden == (8,) and model_based.budget == 10 and model_based.policy == "linear"
     assert isinstance(method_config("SyS-PGPE", 1, 60, settings), TrainConfig)
+
+
+def test_model_based_runs_on_a_discrete_action_space_with_one_hot_actions(one_thread):
+    from drrl.loop import run
+    from drrl.models.data import model_actions
+    from gymnasium import spaces
+
+    assert model_actions([2, 0], spaces.Discrete(3)).tolist() == [[0, 0, 1], [1, 0, 0]]
+    assert model_actions([[0.5], [-1.0]], spaces.Box(-1, 1, (1,))).tolist() == [[0.5], [-1.0]]
+    config = TrainConfig.model_validate({"env": "CartPole-v1", "budget": 4, "eval_episodes": 2, "popsize": 6,
+                                         "episodes_per_candidate": 2, "model_based": TINY_MODEL})
+    setup = prepare(config)
+    counters = run(setup)
+    actions = np.concatenate([episode.actions for episode in setup.world.buffer.episodes])
+    assert counters.real_episodes == 4 and actions.shape[1] == 2 and (actions.sum(1) == 1).all()
+    assert counters.imagined_episodes > 0

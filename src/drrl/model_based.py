@@ -26,14 +26,13 @@ import time
 import gymnasium
 import numpy as np
 import torch
-from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
 from drrl.config import TrainConfig
 from drrl.envs.batch import RegisteredEnv
 from drrl.envs.registry import EnvEntry
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
-from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder
+from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, action_size
 from drrl.models.fit import FitSettings, fit
 from drrl.models.imagined import ImaginedWorld
 from drrl.models.recurrent import WorldModel
@@ -179,14 +178,10 @@ def iteration_sizes(budget: int, settings: ModelBasedSettings) -> list[int]:
 
 def build_model(settings: ModelBasedSettings, env: VectorEnv, seed: int) -> WorldModel:
     """The ensemble of world models ``settings`` describes, for ``env``'s observation and action sizes."""
-    if not isinstance(env.single_action_space, spaces.Box):
-        raise ValueError(f"model-based training needs a Box action space (the model reads actions as numbers), "
-                         f"got {env.single_action_space}")
     observation_size = env.single_observation_space.shape[0]
-    action_size = env.single_action_space.shape[0]
     with torch.random.fork_rng():  # the members' initial weights, without touching the global generator
         torch.manual_seed(seed)
-        return WorldModel(observation_size, action_size, settings.hidden, settings.model_kind,
+        return WorldModel(observation_size, action_size(env.single_action_space), settings.hidden, settings.model_kind,
                           settings.future_inputs, members=settings.ensemble_size)
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from gymnasium import spaces
 from gymnasium.vector import VectorEnv, VectorWrapper
 
 
@@ -152,11 +153,24 @@ def _episode_windows(episode: Episode, unfold: int, length: int) -> tuple[np.nda
             episode.rewards[inside], ends[inside] * mask, mask.astype(np.float32))
 
 
+def model_actions(actions, space: spaces.Space) -> np.ndarray:
+    """Actions as the world model reads them, (N, a) float32: a Box's values, a Discrete's choice one-hot."""
+    if isinstance(space, spaces.Discrete):
+        return np.eye(int(space.n), dtype=np.float32)[np.asarray(actions, dtype=np.int64).reshape(-1) - int(space.start)]
+    actions = np.asarray(actions, dtype=np.float32)
+    return actions.reshape(len(actions), -1)
+
+
+def action_size(space: spaces.Space) -> int:
+    """The length of :func:`model_actions`' rows for ``space``."""
+    return int(space.n) if isinstance(space, spaces.Discrete) else int(np.prod(space.shape))
+
+
 class EpisodeRecorder(VectorWrapper):
     """Records the first episode of every sub-environment while ``drrl.rollout.evaluate`` (or anyone) steps it.
 
-    The actions recorded are those the env receives (after the policy's outputs are bounded), so the model learns
-    the env's own response to them. Later episodes of a sub-environment (after its autoreset) are not recorded.
+    The actions recorded are those the env receives (after the policy's outputs are bounded; a Discrete choice
+    one-hot), so the model learns the env's own response to them. Later episodes of a sub-environment (after its autoreset) are not recorded.
     """
 
     def __init__(self, env: VectorEnv):
@@ -179,7 +193,7 @@ class EpisodeRecorder(VectorWrapper):
 
     def step(self, actions):
         observations, rewards, terminated, truncated, info = self.env.step(actions)
-        actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, -1)
+        actions = model_actions(actions, self.single_action_space)
         for i in np.flatnonzero(self._recording):
             self._observations[i].append(np.array(observations[i], dtype=np.float32))
             self._actions[i].append(actions[i])

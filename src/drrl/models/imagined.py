@@ -24,6 +24,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from drrl.models.base import LearnedModel
+from drrl.models.data import model_actions
 
 # (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,)): a task's reward in closed form,
 # as drrl's environment registry holds it (drrl.envs.registry.EnvEntry.reward)
@@ -127,7 +128,7 @@ class ImaginedEnv(VectorEnv):
         ignored, reward 0, terminated and truncated False: Gymnasium's next-step autoreset)."""
         if self._observation is None:
             raise RuntimeError("call reset() before step()")
-        action = torch.as_tensor(np.asarray(actions, dtype=np.float32), device=self.device).reshape(self.num_envs, -1)
+        action = torch.as_tensor(model_actions(actions, self.single_action_space), device=self.device)
         prediction, self._state = self.model.step(self._observation, action, self._state, self._observed)
         own = (self._member, self._envs)  # each env's own member
         self._observation = prediction.observations[own]
