@@ -70,3 +70,48 @@ def test_a_checkpoint_nested_too_deeply_is_refused_with_a_message(tmp_path):
     save_file({}, tmp_path / CHECKPOINT, metadata={"state": state, "sha256": _digest(state, {})})
     with pytest.raises(ValueError, match="nests its state too deeply"):
         folder.load_checkpoint()
+
+
+def overlapping(labels) -> bool:
+    boxes = [label.get_window_extent() for label in labels if label.get_text()]
+    return any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+
+
+@pytest.mark.parametrize("model_based", [False, True])
+def test_the_learning_curve_reads_cleanly(model_based):
+    from drrl.runs import learning_curve
+
+    rows = [{"iteration" if model_based else "generation": k, "real_episodes": 2 * k, "mean_return": -300.0 + 40 * k,
+             "center_return": -250.0 + 35 * k if model_based or k % 3 == 0 else float("nan"),
+             **({"imagined_center_return": -200.0 + 20 * k} if model_based else {})} for k in range(1, 4)]
+    title = "drrl/CartPole-v0, linear:nobias policy, model-based pgpe (rnn 64, K = 1), a title long enough to wrap"
+    figure = learning_curve(rows, title, best_step=3, eval_episodes=50)
+    figure.canvas.draw()
+    axes = figure.axes[0]
+    canvas = figure.bbox
+    assert canvas.contains(*axes.title.get_window_extent().p0) and canvas.contains(*axes.title.get_window_extent().p1)
+    ticks = [tick for tick in axes.get_xticks() if axes.get_xlim()[0] <= tick <= axes.get_xlim()[1]]
+    assert ticks and all(float(tick).is_integer() for tick in ticks)  # episodes are whole
+    assert not overlapping(axes.get_xticklabels()) and not overlapping(axes.get_yticklabels())
+    labels = [text.get_text() for text in axes.get_legend().get_texts()]
+    assert labels[0] == "centre policy μ (mean of 50 measuring episodes)"
+    assert any("best measured centre" in label and "what drrl eval runs" in label for label in labels)
+    assert ("centre μ inside the world model" in labels) == model_based
+    assert len(axes.lines[-2].get_xdata()) == 3  # the training episodes at every step, measured or not
+
+
+def test_the_comparison_figure_reads_cleanly():
+    import numpy as np
+
+    from drrl.compare import Curve, comparison_figure
+
+    episodes = np.array([2, 3, 4, 6, 8, 16, 40, 100, 300])
+    curve = Curve("SyS-PGPE", episodes, -300.0 + episodes, -310.0 + episodes, -290.0 + episodes, 3)
+    figure = comparison_figure([curve], "cartpole", 50)
+    figure.canvas.draw()
+    axes = figure.axes[0]
+    low, high = axes.get_xlim()
+    labels = [label for label in axes.get_xticklabels() if label.get_text() and low <= label.get_position()[0] <= high]
+    assert [label.get_text() for label in labels] == ["2", "5", "10", "20", "50", "100", "200"]
+    assert not overlapping(labels) and not overlapping(axes.get_yticklabels())
+    assert figure.bbox.contains(*axes.title.get_window_extent().p1)

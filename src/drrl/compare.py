@@ -109,23 +109,36 @@ def write_csv(curves: list[Curve], path: Path) -> None:
 
 
 def plot(curves: list[Curve], path: Path, env: str, eval_episodes: int) -> None:
+    """compare.png: :func:`comparison_figure`."""
+    import matplotlib.pyplot as plt
+
+    figure = comparison_figure(curves, env, eval_episodes)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def comparison_figure(curves: list[Curve], env: str, eval_episodes: int):
+    """Each method's mean centre return and its ±1 s.e. band against real episodes (log axis, ticks at 1, 2, 5,
+    10, 20, ... episodes). A matplotlib figure."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
-    figure, axes = plt.subplots(figsize=(7.0, 4.4))
+    figure, axes = plt.subplots(figsize=(7.0, 4.4), layout="constrained")
     for curve in curves:
         line, = axes.step(curve.real_episodes, curve.mean, where="post", label=f"{curve.method} ({curve.seeds} "
                                                                                f"seed{'s' * (curve.seeds > 1)})")
         axes.fill_between(curve.real_episodes, curve.low, curve.high, step="post", alpha=0.2,
                           color=line.get_color())
     axes.set_xscale("log")
+    axes.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    axes.xaxis.set_major_formatter(ScalarFormatter())
+    axes.xaxis.set_minor_formatter(NullFormatter())
     axes.set_xlabel("real training episodes")
     axes.set_ylabel(f"centre policy's average return ({eval_episodes} episodes)")
     axes.set_title(f"{env}: PGPE variants, mean ± 1 s.e. over seeds (thesis Figure 5.2, extended)", fontsize=9)
     axes.legend(fontsize=8)
     axes.grid(alpha=0.3, which="both")
-    figure.tight_layout()
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
+    return figure

@@ -13,6 +13,7 @@ import hashlib
 import io
 import json
 import os
+import textwrap
 import weakref
 from pathlib import Path
 from typing import Any
@@ -160,28 +161,51 @@ class RunFolder:
                              f"({shown}); restore it, or train a new run with the new settings")
         return config, checkpoint
 
-    def plot_learning_curve(self, title: str) -> Path:
-        """The centre policy's return against real training episodes, as the thesis's Figure 5.2."""
-        import matplotlib
-
-        matplotlib.use("Agg")
+    def plot_learning_curve(self, title: str, best_step: int | None = None, eval_episodes: int | None = None) -> Path:
+        """learning_curve.png: :func:`learning_curve` of this run's metrics."""
         import matplotlib.pyplot as plt
 
-        rows = [row for row in self.read_metrics() if row["center_return"] == row["center_return"]]
-        figure, axes = plt.subplots(figsize=(6.4, 4.0))
-        axes.plot([r["real_episodes"] for r in rows], [r["center_return"] for r in rows], label="centre policy μ")
-        axes.plot([r["real_episodes"] for r in rows], [r["mean_return"] for r in rows], alpha=0.5,
-                  label="population mean")
-        axes.set_xlabel("real training episodes")
-        axes.set_ylabel("average return")
-        axes.set_title(title)
-        axes.legend()
-        axes.grid(alpha=0.3)
-        figure.tight_layout()
+        figure = learning_curve(self.read_metrics(), title, best_step, eval_episodes)
         out = self.path / CURVE
         figure.savefig(out, dpi=120)
         plt.close(figure)
         return out
+
+
+def learning_curve(rows: list[dict[str, float]], title: str, best_step: int | None = None,
+                   eval_episodes: int | None = None):
+    """The centre policy's return against real training episodes, as the thesis's Figure 5.2: the measured centre
+    (its ``best_step``, the one ``drrl eval`` runs, marked), the training episodes' mean return, and for a
+    model-based run the centre's return inside the model. A matplotlib figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    measured = [row for row in rows if row["center_return"] == row["center_return"]]
+    step = next(iter(rows[0])) if rows else "generation"  # the first column: generation or iteration
+    model_based = bool(rows) and "imagined_center_return" in rows[0]
+    figure, axes = plt.subplots(figsize=(6.4, 4.2), layout="constrained")
+    over = f" (mean of {eval_episodes} measuring episodes)" if eval_episodes else ""
+    axes.plot([r["real_episodes"] for r in measured], [r["center_return"] for r in measured], marker=".",
+              label=f"centre policy μ{over}")
+    if model_based:
+        axes.plot([r["real_episodes"] for r in rows], [r["imagined_center_return"] for r in rows], ls="--",
+                  alpha=0.7, label="centre μ inside the world model")
+    axes.plot([r["real_episodes"] for r in rows], [r["mean_return"] for r in rows], alpha=0.5,
+              label="real episodes collected, mean" if model_based else "candidates, mean (one episode each)")
+    best = [r for r in measured if best_step is not None and int(r[step]) == best_step]
+    if best:
+        axes.plot(best[0]["real_episodes"], best[0]["center_return"], "*", markersize=12, color="C3",
+                  label=f"best measured centre ({step} {best_step}, what drrl eval runs)")
+    axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+    axes.set_xlabel("real training episodes")
+    axes.set_ylabel("return")
+    axes.set_title(textwrap.fill(title, 85), fontsize=10)
+    axes.legend(fontsize=8)
+    axes.grid(alpha=0.3)
+    return figure
 
 
 def read_checkpoint(file: Path) -> dict[str, Any]:

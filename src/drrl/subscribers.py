@@ -46,7 +46,8 @@ class RunFolderWriter(Subscriber):
         try:
             self.folder.save_checkpoint(snapshot)
             if counters.iteration:
-                self.folder.plot_learning_curve(setup.world.title(setup))
+                self.folder.plot_learning_curve(setup.world.title(setup), counters.best_iteration or None,
+                                                setup.config.eval_episodes)
         finally:
             self.folder.release()
 
