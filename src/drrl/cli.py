@@ -91,7 +91,8 @@ def main(ctx: click.Context, debug: bool) -> None:
 @model_based_options
 def train_command(env_name, env_option, config_file, out, quiet, resume_path, backend, address, workers,
                   tensorboard, model_based, **options) -> None:
-    """Train a policy with PGPE, e.g. `drrl train cartpole`; `drrl train --resume RUN` continues a stopped run."""
+    """Train a policy on an environment: `drrl train cartpole`, model-based with `--model-based`; `drrl train
+    --resume RUN` continues a stopped run."""
     if resume_path is not None:
         given = [name for name, value in [("ENV", env_name), ("--env", env_option), ("--config", config_file),
                                           ("--out", out), ("--model-based", model_based),
