@@ -204,14 +204,15 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
         env = make_batch_env(entry.env_id, episodes)
     except ValueError as error:
         raise click.ClickException(f"{run_path}: {error}") from None
+    policy = build_policy(config, env)
     try:
-        center = trained_center(checkpoint, build_policy(config, env), final)
+        center = trained_center(checkpoint, policy, final)
     except ValueError as error:
         env.close()
         raise click.ClickException(f"{run_path}: {error}") from None
     step = checkpoint["iteration"] if final else checkpoint["best_iteration"]
     which = f"{'final' if final else 'best measured'} centre ({checkpoint.get('unit', 'generation')} {step})"
-    result = measure(build_policy(config, env), center, env, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
+    result = measure(policy, center, env, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
     env.close()
     returns = result.episode_returns.flatten().numpy()
     click.echo(f"{entry.env_id}, {config.policy} policy, {which}, {episodes} episodes: return "

@@ -138,7 +138,7 @@ def describe_errors(error: ValidationError) -> str:
         if item["type"] == "extra_forbidden" and item["loc"][:-1] in ((), ("model_based",)):
             table = TrainConfig if len(item["loc"]) == 1 else ModelBasedSettings
             message = _unknown_setting(str(item["loc"][-1]), list(table.model_fields))
-        given = f" (got {_short(item['input'])})" if item["loc"] else ""
+        given = f" (got {short_repr(item['input'])})" if item["loc"] else ""
         lines.append(f"{field}: {message}{given}")
     return "\n".join(lines)
 
@@ -149,6 +149,7 @@ def _unknown_setting(name: str, known: list[str]) -> str:
             f"{', '.join(known)}")
 
 
-def _short(value) -> str:
+def short_repr(value, limit: int = 80) -> str:
+    """``repr(value)``, cut to ``limit`` characters for a one-line message."""
     text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
+    return text if len(text) <= limit else text[:limit - 3] + "..."

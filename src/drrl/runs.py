@@ -28,7 +28,7 @@ try:
 except ImportError:  # not on Windows: run folders are then not held
     fcntl = None
 
-from drrl.config import TrainConfig, describe_errors
+from drrl.config import TrainConfig, describe_errors, short_repr
 
 CONFIG = "config.json"
 METRICS = "metrics.csv"
@@ -155,7 +155,7 @@ class RunFolder:
                              f"by an older drrl?), so it cannot be matched to its config.json")
         changed = _differences(config.model_dump(mode="json"), recorded)
         if changed:
-            shown = "; ".join(f"{key}: {_short(now)} in {CONFIG}, {_short(then)} when trained"
+            shown = "; ".join(f"{key}: {short_repr(now, 60)} in {CONFIG}, {short_repr(then, 60)} when trained"
                               for key, now, then in changed[:5])
             raise ValueError(f"{self.path / CONFIG} differs from the settings its checkpoint was trained with "
                              f"({shown}); restore it, or train a new run with the new settings")
@@ -270,11 +270,6 @@ def _differences(now: dict, then: dict, prefix: str = "") -> list[tuple[str, Any
         elif a != b:
             found.append((f"{prefix}{key}", a, b))
     return found
-
-
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _write_atomically(file: Path, text: str) -> None:
