@@ -188,10 +188,10 @@ def reach_fraction(final_distance: torch.Tensor, terminated: torch.Tensor, toler
 def reach_verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) -> dict[str, bool]:
     """What a 5.10 return can tell, for metrics.csv and ``drrl eval``: an episode *held* its target(s) if it did not
     fail and spent at least half of the T = 2000 steps with every end-point within 0.05 m (return ≥ −1000, as each
-    step away costs 1). held_95 / held_80: at least 95 % / 80 % of the episodes held (the reach targets' bars for a fixed
-    target / random targets); no_failure: no episode touched anything or hit a joint limit.
+    step away costs 1). held_95 / held_80: at least 95 % / 80 % of the episodes held (the bars for a fixed target /
+    random targets); no_failure: no episode touched anything or hit a joint limit.
 
-    The reach target's own criterion, where an episode *ends*, needs the final distance, which a return does not hold:
+    The reach criterion proper, where an episode *ends*, needs the final distance, which a return does not hold:
     benchmarks/baxter_reach.py measures it with :func:`reach_fraction`. Assumes episodes of the full horizon (a
     ``max_steps`` cut shortens them and makes holding easier) and the thesis reward (not the dense one)."""
     held = (torch.as_tensor(episode_returns) >= -HORIZON / 2) & ~torch.as_tensor(terminated, dtype=torch.bool)
