@@ -33,7 +33,7 @@ def one_at_a_time(policy, params, env_id, seeds, episodes):
 @pytest.mark.parametrize("env_id", ["CartPole-v1", "Pendulum-v1"])
 def test_batched_rollout_equals_one_episode_at_a_time(env_id):
     population, episodes = 4, 3
-    env = make_batch_env(env_id, population * episodes)
+    env = make_batch_env(env_id, population * episodes, "gymnasium")
     policy = linear(env.single_observation_space.shape[0], ActionMap(env.single_action_space).size)
     params = torch.randn(population, policy.num_params, generator=torch.Generator().manual_seed(1))
     result = evaluate(policy, params, env, episodes, seed=7)
@@ -151,7 +151,7 @@ def test_an_env_whose_dependency_is_missing_is_refused_with_the_pip_extra(monkey
         monkeypatch.delitem(sys.modules, name)
     monkeypatch.setitem(sys.modules, "Box2D", None)  # as if gymnasium[box2d] were not installed
     with pytest.raises(ValueError, match=r'LunarLander-v3 cannot be made here: .*pip install "gymnasium\[box2d\]"'):
-        make_batch_env("LunarLander-v3", 2)
+        make_batch_env("LunarLander-v3", 2, "gymnasium")
 
 
 def test_close_matches_name_only_envs_that_can_be_made_here(monkeypatch):

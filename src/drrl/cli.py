@@ -11,7 +11,7 @@ from pydantic import ValidationError
 
 from drrl import __version__
 from drrl.config import TrainConfig, describe_errors, load_config_file
-from drrl.envs.batch import make_batch_env
+from drrl.envs.batch import ENGINES, make_batch_env
 from drrl.envs.registry import aliases, lookup
 from drrl.loop import Counters, Setup, derive_seed, measure, run
 from drrl.runs import RunFolder
@@ -61,6 +61,8 @@ def main(ctx: click.Context, debug: bool) -> None:
 @click.argument("env_name", required=False, metavar="[ENV]")
 @click.option("--env", "env_option",
               help=f"Environment: {', '.join(aliases())} or any Gymnasium id (e.g. Pendulum-v1).")
+@setting("engine", click.Choice(ENGINES), "what steps the env's batch: drrl's own (native), EnvPool "
+                                         "(pip install \"drrl[envpool]\"), or Gymnasium's envs in turn")
 @setting("policy", str, ACCEPTED_FORMS)
 @setting("search", click.Choice(SEARCHES), "search: PGPE (the thesis), or CMA-ES with a full or diagonal covariance")
 @setting("sampler", click.Choice(SAMPLERS), "PGPE sampler")
@@ -201,7 +203,7 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
     try:
         config, checkpoint = open_run(run)
         entry = lookup(checkpoint["env_id"])
-        env = make_batch_env(entry.env_id, episodes)
+        env = make_batch_env(entry.env_id, episodes, config.engine)
     except ValueError as error:
         raise click.ClickException(f"{run_path}: {error}") from None
     policy = build_policy(config, env)

@@ -10,13 +10,14 @@ from pathlib import Path
 import torch
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from drrl.envs.batch import ENGINES
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings, one_of
 from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 
 MAX_CONFIG_BYTES = 1024 * 1024
 CHOICES = {"search": SEARCHES, "sampler": SAMPLERS, "optimizer": OPTIMIZERS,
-           "fitness_shaping": FITNESS_SHAPINGS}  # string settings
+           "fitness_shaping": FITNESS_SHAPINGS, "engine": ENGINES}  # string settings
 
 
 class TrainConfig(BaseModel):
@@ -56,6 +57,8 @@ class TrainConfig(BaseModel):
     max_steps: int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
     seed: int = Field(0, ge=0, le=2**32 - 1)
     device: str = "cpu"
+    engine: str = Field("auto", description="what steps the env's batch (drrl.envs.batch); a run folder's config "
+                                            "names the one its run used")
     model_based: ModelBasedSettings | None = Field(None, description="set: model-based PGPE (drrl.model_based)")
 
     @field_validator(*CHOICES)

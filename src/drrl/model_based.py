@@ -67,7 +67,7 @@ class ModelBased(World):
             raise ValueError(f"model_based.reward: no closed-form reward is known for {entry.env_id!r}; use "
                              f"'learned' or 'auto'")
         self.config, self.settings, self.policy, self.backend = config, settings, policy, backend
-        self.real = RegisteredEnv(entry.env_id)
+        self.real = RegisteredEnv(entry.env_id, config.engine)
         self.action_space = eval_env.single_action_space
         self.model = build_model(settings, eval_env, config.seed).to(config.device)
         self.horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)

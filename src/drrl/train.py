@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 
 from drrl.config import TrainConfig
-from drrl.envs.batch import ActionMap, RegisteredEnv, make_batch_env, observation_size
+from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, make_batch_env, observation_size
 from drrl.envs.registry import lookup
 from drrl.loop import Counters, Setup, Subscriber, check_checkpoint, restore, run
 from drrl.model_based import ModelBased
@@ -73,16 +73,17 @@ def prepare(config: TrainConfig, backend: str = "local", address: str | None = N
     """Build envs, policy, search, world and backend; bad names, settings or unsupported spaces raise ValueError
     here, before any work."""
     entry = lookup(config.env)
-    probe = make_batch_env(entry.env_id, 1)  # its spaces size the policy before anything big is made
+    config = config.model_copy(update={"engine": choose_engine(entry.env_id, config.engine)})
+    probe = make_batch_env(entry.env_id, 1, config.engine)  # its spaces size the policy before anything is made
     try:
         policy = build_policy(config, probe)
         check_memory(config, policy)
     finally:
         probe.close()
-    eval_env = make_batch_env(entry.env_id, config.eval_episodes)
+    eval_env = make_batch_env(entry.env_id, config.eval_episodes, config.engine)
     try:
         search = build_search(config, policy)
-        workload = Workload(policy, RegisteredEnv(entry.env_id), config.popsize, config.episodes_per_candidate,
+        workload = Workload(policy, RegisteredEnv(entry.env_id, config.engine), config.popsize, config.episodes_per_candidate,
                             config.max_steps)
         evaluator = make_backend(backend, workload, address=address, workers=workers)
     except BaseException:

@@ -1,8 +1,12 @@
-"""The one batched-environment interface: Gymnasium's ``VectorEnv``.
+"""The one batched-environment interface: Gymnasium's ``VectorEnv``, made by one of three engines.
 
-drrl's own environments are native vector envs (``gymnasium.make_vec`` returns them); any other Gymnasium env with
-a 1-D Box observation and a Box or Discrete action is batched by Gymnasium's ``SyncVectorEnv``, which, unlike some
-native vector envs of Gymnasium, takes one reset seed per sub-environment. ``ActionMap`` turns
+* ``native``: drrl's own environments, NumPy or MuJoCo batches (``gymnasium.make_vec`` returns them).
+* ``envpool``: EnvPool's C++ batches of Gymnasium's classic-control and MuJoCo tasks (:mod:`drrl.envs.pool`).
+* ``gymnasium``: any other registered env with a 1-D Box observation and a Box or Discrete action, one Gymnasium
+  env per slot stepped in turn (:mod:`drrl.envs.serial`). Gymnasium's own native vector envs are not used: they
+  take one reset seed for the whole batch, and drrl gives every episode its own.
+
+``auto`` picks the first that can run the id; a run records the engine it used in its config. ``ActionMap`` turns
 a policy's raw outputs into actions of the env's action space. An ``EnvSource`` names a batched env so that
 another process can make it: a registered id here, a learned model in :mod:`drrl.models.imagined`.
 """
@@ -18,7 +22,11 @@ import torch
 from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
+from drrl.envs import pool
 from drrl.envs.registry import lookup
+from drrl.envs.serial import SerialEpisodes
+
+ENGINES = ("auto", "native", "envpool", "gymnasium")
 
 class EnvSource(Protocol):
     """Something a rollout process can rebuild a batched env from: small, picklable, made anew in each worker."""
@@ -29,12 +37,13 @@ class EnvSource(Protocol):
 
 @dataclass(frozen=True)
 class RegisteredEnv:
-    """A registered environment by its Gymnasium id (or drrl alias)."""
+    """A registered environment by its Gymnasium id (or drrl alias), batched by ``engine``."""
 
     env_id: str
+    engine: str = "auto"
 
     def make(self, num_envs: int) -> VectorEnv:
-        return make_batch_env(self.env_id, num_envs)
+        return make_batch_env(self.env_id, num_envs, self.engine)
 
 
 def resolve_env_id(name: str) -> str:
@@ -42,12 +51,35 @@ def resolve_env_id(name: str) -> str:
     return lookup(name).env_id
 
 
-def make_batch_env(name: str, num_envs: int) -> VectorEnv:
+def choose_engine(name: str, engine: str = "auto") -> str:
+    """The engine that batches env ``name``: ``engine`` itself if it can, the first that can for ``auto``."""
+    env_id = resolve_env_id(name)
+    native = env_id.startswith("drrl/")
+    if engine == "auto":
+        return "native" if native else "envpool" if pool.installed() and pool.ships(env_id) else "gymnasium"
+    if engine == "native" and not native:
+        raise ValueError(f"{env_id} has no native drrl batch; its engines are envpool and gymnasium")
+    if engine == "envpool":
+        if not pool.installed():
+            raise ValueError('engine envpool is not installed; pip install "drrl[envpool]"')
+        if not pool.ships(env_id):
+            raise ValueError(f"EnvPool has no {env_id}; use engine gymnasium")
+    if engine not in ENGINES:
+        raise ValueError(f"unknown engine {engine!r}; choose one of: {', '.join(ENGINES)}")
+    return engine
+
+
+def make_batch_env(name: str, num_envs: int, engine: str = "auto") -> VectorEnv:
     """``num_envs`` copies of env ``name`` stepping together; raises before any work on unsupported spaces."""
     env_id = resolve_env_id(name)
-    mode = "vector_entry_point" if env_id.startswith("drrl/") else "sync"
+    engine = choose_engine(env_id, engine)
     try:
-        env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode)
+        if engine == "native":
+            env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point")
+        elif engine == "envpool":
+            env = pool.PooledEpisodes(env_id, num_envs)
+        else:
+            env = SerialEpisodes(env_id, num_envs)
     except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
         raise ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}") from None
     try:

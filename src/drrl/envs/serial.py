@@ -1,0 +1,39 @@
+"""Gymnasium's envs, one per slot, stepped in turn: the engine for any registered id, with nothing else installed.
+
+The same envs and seeds as Gymnasium's ``SyncVectorEnv``, so the same episodes, but an ended episode's env is not
+stepped again (:class:`~drrl.envs.slots.EpisodeSlots`).
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+
+from drrl.envs.slots import EpisodeSlots
+
+
+class SerialEpisodes(EpisodeSlots):
+    """``num_envs`` copies of ``gymnasium.make(env_id)``."""
+
+    def __init__(self, env_id: str, num_envs: int):
+        self.envs = []
+        try:
+            for _ in range(num_envs):
+                self.envs.append(gymnasium.make(env_id, disable_env_checker=True))
+        except BaseException:
+            self.close_extras()
+            raise
+        super().__init__(num_envs, self.envs[0].observation_space, self.envs[0].action_space)
+
+    def start(self, seeds):
+        return np.stack([env.reset(seed=seed)[0] for env, seed in zip(self.envs, seeds)])
+
+    def advance(self, slots, actions):
+        observations, rewards, terminated, truncated = zip(*(self.envs[i].step(action)[:4]
+                                                             for i, action in zip(slots, actions)))
+        return (np.stack(observations), np.asarray(rewards, dtype=np.float64), np.asarray(terminated, dtype=bool),
+                np.asarray(truncated, dtype=bool))
+
+    def close_extras(self, **kwargs):
+        for env in self.envs:
+            env.close()

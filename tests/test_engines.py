@@ -1,0 +1,115 @@
+"""The engines that batch an env: the same episodes as Gymnasium's, no step computed that is not counted, and the
+engine a run used written to its config."""
+
+import gymnasium
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from drrl.cli import main
+from drrl.envs import pool
+from drrl.envs.batch import choose_engine, make_batch_env
+from drrl.policies import linear
+from drrl.rollout import evaluate
+from drrl.runs import RunFolder
+
+
+class CountingSteps(gymnasium.Wrapper):
+    def __init__(self, env, tally):
+        super().__init__(env)
+        self.tally = tally
+
+    def step(self, action):
+        self.tally[0] += 1
+        return self.env.step(action)
+
+
+def random_candidates(env, population, seed=1):
+    policy = linear(env.single_observation_space.shape[0], 3 if env.single_action_space.shape == () else 1)
+    return policy, torch.randn(population, policy.num_params, generator=torch.Generator().manual_seed(seed))
+
+
+def swinging_candidates(population, seed=1):
+    """Acrobot policies that push the way the second joint turns (pumping energy in), perturbed: episodes that end
+    anywhere between about a hundred steps and the limit of 500."""
+    policy = linear(6, 3)
+    weights = torch.zeros(6, 3)
+    weights[5, 0], weights[5, 2] = -1.0, 1.0  # torque -1 when θ̇2 < 0, +1 when θ̇2 > 0
+    center = torch.cat([weights.flatten(), torch.zeros(3)])
+    noise = torch.randn(population, policy.num_params, generator=torch.Generator().manual_seed(seed))
+    return policy, center + 0.5 * noise
+
+
+def test_the_gymnasium_engine_runs_gymnasiums_episodes_and_steps_no_ended_one():
+    """Acrobot's episodes end anywhere from a few dozen steps to its limit of 500: Gymnasium's SyncVectorEnv steps
+    every env to the longest; the gymnasium engine only the running ones, with the same returns."""
+    env = make_batch_env("Acrobot-v1", 16, "gymnasium")
+    tally = [0]
+    env.envs = [CountingSteps(single, tally) for single in env.envs]
+    policy, params = swinging_candidates(8)
+    ours = evaluate(policy, params, env, 2, seed=3)
+    theirs = evaluate(policy, params, gymnasium.make_vec("Acrobot-v1", 16, vectorization_mode="sync"), 2, seed=3)
+    assert torch.equal(ours.episode_returns, theirs.episode_returns) and ours.steps == theirs.steps
+    assert tally[0] == ours.steps
+    assert ours.episode_returns.max() > -500 and ours.episode_returns.min() == -500  # uneven lengths indeed
+
+
+def test_an_ended_episode_stays_where_it_ended_until_the_next_reset():
+    env = make_batch_env("CartPole-v1", 2, "gymnasium")
+    env.reset(seed=0)
+    push_left = np.zeros(2, dtype=np.int64)
+    terminated = np.zeros(2, dtype=bool)
+    while not terminated.any():
+        observations, rewards, terminated, truncated, _ = env.step(push_left)
+    ended = int(np.flatnonzero(terminated)[0])
+    again, rewards, still_terminated, _, _ = env.step(push_left)
+    assert np.array_equal(again[ended], observations[ended]) and rewards[ended] == 0 and still_terminated[ended]
+    assert rewards[1 - ended] == 1 or still_terminated[1 - ended]  # the other one went on, unless it ended too
+    restarted, _ = env.reset(seed=0)
+    assert np.abs(restarted).max() <= 0.05
+
+
+def test_auto_picks_drrls_own_batch_for_its_envs_and_refuses_engines_that_cannot_run_an_id(monkeypatch):
+    assert choose_engine("cartpole") == "native"
+    monkeypatch.setattr(pool, "installed", lambda: False)
+    assert choose_engine("Acrobot-v1") == "gymnasium"
+    with pytest.raises(ValueError, match=r'engine envpool is not installed; pip install "drrl\[envpool\]"'):
+        choose_engine("Acrobot-v1", "envpool")
+    with pytest.raises(ValueError, match="Acrobot-v1 has no native drrl batch; its engines are envpool and gymnasium"):
+        choose_engine("Acrobot-v1", "native")
+
+
+def test_a_run_names_the_engine_it_used_in_its_config(tmp_path, monkeypatch):
+    monkeypatch.setattr(pool, "installed", lambda: False)
+    out = tmp_path / "run"
+    result = CliRunner().invoke(main, ["train", "Acrobot-v1", "--budget", "4", "--popsize", "4", "--eval-episodes",
+                                       "2", "--quiet", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert RunFolder(out).read_config().engine == "gymnasium"
+    refused = CliRunner().invoke(main, ["train", "cartpole", "--engine", "envpool", "--out", str(tmp_path / "x")])
+    assert refused.exit_code == 2 and 'engine envpool is not installed; pip install "drrl[envpool]"' in refused.output
+
+
+@pytest.mark.skipif(not pool.installed(), reason='needs EnvPool (pip install "drrl[envpool]")')
+class TestEnvPool:
+    def test_auto_picks_envpool_for_the_tasks_it_ships(self):
+        assert choose_engine("Acrobot-v1") == "envpool" and choose_engine("drrl/CartPole-v0") == "native"
+        with pytest.raises(ValueError, match="EnvPool has no drrl/CartPole-v0; use engine gymnasium"):
+            choose_engine("cartpole", "envpool")
+
+    def test_episodes_are_a_pure_function_of_the_seed_and_pair_candidates_on_common_starts(self):
+        env = make_batch_env("Acrobot-v1", 12, "envpool")
+        policy, params = swinging_candidates(4)
+        first, again = (evaluate(policy, params, env, 3, seed=5) for _ in range(2))
+        assert torch.equal(first.episode_returns, again.episode_returns) and first.steps == again.steps
+        same = params[:1].repeat(4, 1)
+        paired = evaluate(policy, same, env, 3, seed=5).episode_returns
+        assert (paired == paired[0]).all() and len(set(paired[0].tolist())) > 1
+
+    def test_episodes_are_counted_exactly(self):
+        env = make_batch_env("CartPole-v1", 6, "envpool")
+        policy, params = random_candidates(env, 6)
+        result = evaluate(policy, params, env, 1, seed=0)
+        assert result.episode_returns.sum().item() == result.steps  # 1 a step until each episode ends
+        assert 6 * 8 < result.steps < 6 * 500
