@@ -46,7 +46,8 @@ def episodes_to_criteria(env: str, policy: str, settings: dict, seeds: int, budg
     """Per criterion, the real training episodes each seed needed to first meet it (None if never)."""
     reached: dict[str, list] = {criterion: [] for criterion in CRITERIA}
     for seed in range(seeds):
-        rows = train(TrainConfig(env=env, policy=policy, seed=seed, budget=budget, **settings), progress=False).rows
+        rows = train(TrainConfig(env=env, policy=policy, seed=seed, budget=budget, eval_share=1.0, **settings),
+                     progress=False).rows
         for criterion in CRITERIA:
             reached[criterion].append(first_reached(rows, criterion))
     return reached

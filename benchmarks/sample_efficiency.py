@@ -1,8 +1,8 @@
 """Real training episodes until the centre policy is balanced / near-optimal on the thesis cart-pole (5.1).
 
 For each method and seed, `drrl train`'s defaults (bias-free linear policy) spend a budget of real episodes; the
-centre policy is measured on 50 fresh episodes after every generation (counted apart, never as training).
-Prints a Markdown table of medians over seeds. A method is a PGPE sampler or another search (cmaes, sep-cmaes),
+centre policy is measured on 50 fresh episodes after every generation (`eval_share` 1; counted apart, never as
+training). Prints a Markdown table of medians over seeds. A method is a PGPE sampler or another search (cmaes, sep-cmaes),
 which keeps the same popsize, σ₀ and budget.
 
     python benchmarks/sample_efficiency.py --seeds 10 --workers 2
@@ -39,7 +39,7 @@ def episodes_to_criteria(job: tuple[str, int, int]) -> list[int | None]:
     method, seed, budget = job
     torch.set_num_threads(1)
     choice = {"search": method} if method in SEARCHES else {"sampler": method}
-    rows = train(TrainConfig(**choice, seed=seed, budget=budget), progress=False).rows
+    rows = train(TrainConfig(**choice, seed=seed, budget=budget, eval_share=1.0), progress=False).rows
     return [first_reached(rows, criterion) for criterion in CRITERIA]
 
 

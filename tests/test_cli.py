@@ -13,7 +13,7 @@ from drrl.cli import main
 from drrl.runs import RunFolder
 from drrl.train import prepare
 
-SMALL = ["--budget", "40", "--popsize", "10", "--eval-episodes", "5", "--quiet"]
+SMALL = ["--budget", "40", "--popsize", "10", "--eval-episodes", "5", "--eval-share", "1", "--quiet"]
 
 
 def train(tmp_path, *args, name="run"):

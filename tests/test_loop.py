@@ -92,7 +92,7 @@ def test_ray_equals_local_bit_for_bit(tmp_path, one_thread, config):
 
 
 def test_model_free_cmaes_improves_the_cartpole_and_resumes_exactly(tmp_path):
-    config = TrainConfig(search="cmaes", budget=160, eval_every=4, seed=1)
+    config = TrainConfig(search="cmaes", budget=160, eval_every=4, eval_share=1.0, seed=1)
     whole = train(config, tmp_path / "whole")
     measured = [row["center_return"] for row in whole.rows if row["center_return"] == row["center_return"]]
     assert measured[-1] > measured[0] + 50  # the thesis cart-pole's centre gets much better within 20 generations
@@ -186,3 +186,15 @@ def test_the_model_guard_warns_when_the_model_promises_far_more_than_reality_giv
     guard.row(None, counters, {"imagined_center_return": -40.0, "center_return": -45.0})  # one that is right
     guard.row(None, counters, {"center_return": -45.0})  # a model-free row
     assert guard.warned == 1 and "promised the centre 654.0, reality gave 4.6" in said[0]
+
+
+def test_measuring_takes_about_a_quarter_of_the_env_steps_by_default():
+    """50 measuring episodes after each generation of 8 would cost six times the training; by default the loop
+    measures only while measuring stays within a quarter of the steps, and always after the last generation."""
+    counters = train(TrainConfig(budget=400, seed=0))
+    measured = [row["generation"] for row in counters.rows if row["center_return"] == row["center_return"]]
+    assert 1 < len(measured) < 10 and measured[-1] == 50
+    last = counters.eval_steps / len(measured) * 2  # generous: the last measurement is of the longest episodes
+    assert counters.eval_steps - last <= 0.25 * (counters.real_steps + counters.eval_steps)
+    every = train(TrainConfig(budget=400, seed=0, eval_share=1.0))
+    assert every.eval_episodes == 50 * 50 and every.real_steps == counters.real_steps  # measuring changes no training

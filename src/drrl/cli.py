@@ -76,6 +76,7 @@ def main(ctx: click.Context, debug: bool) -> None:
 @setting("sigma_lr", float, "learning rate of σ")
 @setting("eval_episodes", INTEGER, "episodes measuring the centre policy")
 @setting("eval_every", INTEGER, "generations between measurements")
+@setting("eval_share", float, "the most of a model-free run's env steps that measuring may take")
 @setting("seed", INTEGER, "random seed")
 @setting("checkpoint_every", INTEGER, "generations between checkpoints")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),

@@ -43,14 +43,16 @@ class Curve:
 def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainConfig:
     """The run config of ``method``: the shared ``settings`` (TrainConfig fields), then the method's own.
 
-    Model-free methods keep ``settings``' policy and search; REINFORCE needs no pairs and super-symmetric PGPE
-    needs a popsize divisible by 4, so their popsize is rounded up to 8 where smaller.
+    Model-free methods keep ``settings``' policy and search and measure their centre after every generation
+    (``eval_share`` 1, unless ``settings`` say otherwise), for curves as fine as the model-based ones; REINFORCE needs
+    no pairs and super-symmetric PGPE needs a popsize divisible by 4, so their popsize is rounded up to 8 where
+    smaller.
     """
     base = {key: value for key, value in settings.items() if key != "model_based"}
     if method == MODEL_BASED:
         return TrainConfig.model_validate({**base, "budget": budget, "seed": seed,
                                            "model_based": settings.get("model_based") or {}})
-    merged = {**base, "sampler": MODEL_FREE[method], "budget": budget, "seed": seed}
+    merged = {"eval_share": 1.0, **base, "sampler": MODEL_FREE[method], "budget": budget, "seed": seed}
     if merged["sampler"] == "supersymmetric" and merged.get("popsize", 8) % 4:
         merged["popsize"] = 8
     return TrainConfig.model_validate(merged)

@@ -53,6 +53,8 @@ class TrainConfig(BaseModel):
     eval_episodes: int = Field(50, ge=1, le=100_000, description="episodes that measure the centre policy "
                                                                    "(not training)")
     eval_every: int = Field(1, ge=1, le=10**9, description="generations between measurements of the centre policy")
+    eval_share: float = Field(0.25, gt=0, le=1, description="the most of a model-free run's env steps that "
+                                                            "measuring may take (1: measure every eval_every)")
     checkpoint_every: int = Field(10, ge=1, le=10**9, description="generations between checkpoints")
     max_steps: int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
     seed: int = Field(0, ge=0, le=2**32 - 1)

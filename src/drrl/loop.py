@@ -36,7 +36,7 @@ from drrl.search.base import Search
 
 TRAINING, MEASURING = 0, 1  # independent random streams for training and measuring episodes
 COUNTS = ("iteration", "generations", "real_episodes", "real_steps", "imagined_episodes", "imagined_steps",
-          "eval_episodes", "best_iteration", "best_center_criteria")
+          "eval_episodes", "eval_steps", "best_iteration", "best_center_criteria")
 
 
 def derive_seed(seed: int, step: int, stream: int) -> int:
@@ -62,6 +62,7 @@ class Counters:
     imagined_episodes: int = 0
     imagined_steps: int = 0
     eval_episodes: int = 0
+    eval_steps: int = 0
     rows: list[dict] = field(default_factory=list)  # one metrics row per step
     best_center: torch.Tensor | None = None  # the best measured centre: most verdict criteria met, then highest return
     best_center_return: float = float("-inf")
@@ -90,7 +91,8 @@ class World(ABC):
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         """Step ``iteration``: improve ``setup.search``, count what it spent in ``counters``; its metrics row."""
 
-    def measure_due(self, iteration: int) -> bool:
+    def measure_due(self, iteration: int, counters: Counters) -> bool:
+        """Whether the loop measures the centre after step ``iteration``, given what the run has spent."""
         return True
 
     def checkpoint_due(self, iteration: int) -> bool:
@@ -180,12 +182,13 @@ def measure(policy: Policy, center: torch.Tensor, env: VectorEnv, max_steps: int
 def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
     """When due, the centre's measured return and the task's verdict on it, and the best centre updated; else NaN
     in the same columns (metrics.csv keeps fixed columns)."""
-    if not setup.world.measure_due(iteration):
+    if not setup.world.measure_due(iteration, counters):
         return dict.fromkeys(("center_return", *setup.entry.criteria()), float("nan"))
     center = setup.search.center
     measured = measure(setup.policy, center, setup.eval_env, setup.config.max_steps,
                        derive_seed(setup.config.seed, iteration, MEASURING))
     counters.eval_episodes += measured.episodes
+    counters.eval_steps += measured.steps
     center_return = float(measured.returns[0])
     met = setup.entry.judge(measured.episode_returns, measured.terminated)
     if better_center(met, center_return, counters.best_center_criteria, counters.best_center_return):

@@ -2,7 +2,9 @@
 
 One step of the loop (:func:`drrl.loop.run`) is one generation: ask for P candidates, run them for E real
 episodes each in one batched rollout on the backend, tell the search their mean returns. The loop then measures
-the centre policy μ every ``eval_every`` generations on separate episodes, counted apart. Checkpoints are taken
+the centre policy μ on separate episodes, counted apart: every ``eval_every`` generations as long as measuring
+takes at most ``eval_share`` of the run's env steps (a quarter by default: 50 measuring episodes after every
+generation of 8 candidates cost six times the training itself), and after the last one. Checkpoints are taken
 every ``checkpoint_every`` generations; episode seeds derive from the run seed and the generation, so no
 environment state needs saving.
 """
@@ -43,8 +45,20 @@ class ModelFree(World):
                 "mean_return": float(result.returns.mean()), "best_return": float(result.returns.max()),
                 "sigma_norm": metrics["sigma_norm"]}
 
-    def measure_due(self, iteration: int) -> bool:
-        return iteration % self.config.eval_every == 0 or iteration == self.iterations
+    def measure_due(self, iteration: int, counters: Counters) -> bool:
+        """After the last generation; else every ``eval_every`` generations if measuring now keeps the steps spent
+        measuring within ``eval_share`` of all, a measurement expected to cost as much as the earlier ones on
+        average (before any: ``eval_episodes`` episodes as long as the training episodes so far)."""
+        config = self.config
+        if iteration == self.iterations:
+            return True
+        if iteration % config.eval_every:
+            return False
+        measurements = counters.eval_episodes // config.eval_episodes
+        expected = (counters.eval_steps / measurements if measurements
+                    else config.eval_episodes * counters.real_steps / counters.real_episodes)
+        spent = counters.eval_steps + expected
+        return spent <= config.eval_share * (counters.real_steps + spent)
 
     def checkpoint_due(self, iteration: int) -> bool:
         return iteration % self.config.checkpoint_every == 0
