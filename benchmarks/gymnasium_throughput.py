@@ -14,8 +14,8 @@ actions are the argmax of the policy's outputs, Box actions are clipped to their
 Steps are the real env steps of the generation's episodes: ``Evaluation.steps`` for drrl, the generation's increase
 of EvoTorch's ``total_interaction_count`` status. drrl's engines step no ended episode, so every sub-env step they
 compute is counted. Each contender runs one warm-up generation, then one more that sets N, the same for all: enough
-generations for ``--seconds`` of the fastest. Then ``--rounds`` rounds, each contender running N generations in turn,
-the order alternating between rounds; N is raised after a round whose fastest contender took less. All contenders
+generations for 1.5 × ``--seconds`` of the fastest. Then ``--rounds`` rounds, each contender running N generations in
+turn, the order alternating between rounds; N is raised after a round whose fastest contender took less. All contenders
 thus stay at the same generation, where episode lengths are alike (they change as a search learns). Rates are
 medians over rounds; ratios divide a row's median by GymNE's and VecGymNE's. Run on one core:
 
@@ -43,14 +43,16 @@ SIGMA_INIT, CENTER_LR, SIGMA_LR, MAX_SIGMA_CHANGE = 1.0, 0.1, 0.01, 0.2
 
 
 class Drrl:
-    """drrl's own training pieces (``prepare``), one generation as ``ModelFree.step`` runs it, no measuring."""
+    """drrl's own training pieces (``prepare``), one generation as ``ModelFree.step`` runs it (its backend, its
+    seed), no measuring."""
 
     def __init__(self, env: str, engine: str, popsize: int):
         self.name = f"drrl ({engine})"
+        plain = {"observation_norm": False} if "observation_norm" in TrainConfig.model_fields else {}  # as EvoTorch
         config = TrainConfig(env=env, policy="linear", popsize=popsize, sampler="symmetric", optimizer="clipup",
                              fitness_shaping="centered_ranks", sigma_init=SIGMA_INIT, center_lr=CENTER_LR,
                              sigma_lr=SIGMA_LR, max_sigma_change=MAX_SIGMA_CHANGE, engine=engine,
-                             budget=10**9, eval_every=10**9, eval_episodes=1)
+                             budget=10**9, eval_every=10**9, eval_episodes=1, **plain)
         self.setup = prepare(config)
         self.generation = 0
 
@@ -100,20 +102,21 @@ def timed(contender, generations: int) -> tuple[float, int]:
 
 def measure(env: str, popsize: int, rounds: int, seconds: float) -> list[dict]:
     """All contenders run the same generations, so that their searches are at the same stage (episode lengths
-    change as a search learns): N a round for all, raised after a round whose fastest contender took under
-    ``seconds``."""
+    change as a search learns): N a round for all, aimed at 1.5 × ``seconds`` for the fastest contender and raised
+    after a round whose fastest took less."""
     contenders = [Drrl(env, "gymnasium", popsize), Drrl(env, "envpool", popsize),
                   EvoTorch(env, "GymNE", popsize), EvoTorch(env, "VecGymNE", popsize)]
     results = {contender.name: [] for contender in contenders}
+    aim = 1.5 * seconds  # a margin: episodes shorten as a search learns, and a round with them
     try:
         for contender in contenders:
             timed(contender, 1)  # warm-up: envs made, first resets, lazily built pieces
-        count = max(math.ceil(seconds / timed(contender, 1)[0]) for contender in contenders)
+        count = max(math.ceil(aim / timed(contender, 1)[0]) for contender in contenders)
         for r in range(rounds):
             for contender in (contenders if r % 2 == 0 else contenders[::-1]):
                 results[contender.name].append((count, *timed(contender, count)))
             fastest = min(results[contender.name][-1][1] for contender in contenders)
-            count = max(count, math.ceil(count * seconds / fastest))
+            count = max(count, math.ceil(count * aim / fastest))
     finally:
         for contender in contenders:
             contender.close()

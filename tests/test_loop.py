@@ -10,6 +10,7 @@ import torch
 
 from drrl.config import TrainConfig
 from drrl.loop import Subscriber, run
+from drrl.rollout.moments import Moments
 from drrl.runs import RunFolder
 from drrl.train import prepare, resume, subscribers, train
 
@@ -80,15 +81,42 @@ def test_a_stopped_model_based_run_resumes_to_the_uninterrupted_metrics_and_chec
     assert final.keys() == expected.keys() and all(torch.equal(final[key], expected[key]) for key in expected)
 
 
+NORMALISED = TrainConfig(env="Pendulum-v1", engine="gymnasium", policy="mlp:4", popsize=6, budget=36,
+                         eval_episodes=2, eval_share=1.0, checkpoint_every=2, seed=3)
+
+
 @pytest.mark.parametrize("config", [MODEL_BASED.model_copy(update={"budget": 6}),
-                                    TrainConfig(search="cmaes", budget=48, eval_episodes=4, seed=2)],
-                         ids=["model-based PGPE", "model-free CMA-ES"])
+                                    TrainConfig(search="cmaes", budget=48, eval_episodes=4, seed=2), NORMALISED],
+                         ids=["model-based PGPE", "model-free CMA-ES", "normalised observations"])
 def test_ray_equals_local_bit_for_bit(tmp_path, one_thread, config):
     pytest.importorskip("ray")
     train(config, tmp_path / "local")
     train(config, tmp_path / "ray", backend="ray", workers=2)
     assert metrics(tmp_path / "ray") == metrics(tmp_path / "local")
     assert len(metrics(tmp_path / "local")) == (3 if config.model_based else 6)
+    on_ray, here = (tensors(RunFolder(tmp_path / name).load_checkpoint()) for name in ("ray", "local"))
+    assert on_ray.keys() == here.keys() and all(torch.equal(on_ray[key], here[key]) for key in here)
+
+
+def test_normalised_observations_resume_exactly_and_the_env_runs_the_folded_centre(tmp_path):
+    whole = train(NORMALISED, tmp_path / "whole")
+    checkpoint = RunFolder(tmp_path / "whole").load_checkpoint()
+    moments = checkpoint["world"]["observation_moments"]
+    assert int(moments["count"].sum()) == whole.real_steps  # every observation acted on in training, once
+    assert RunFolder(tmp_path / "whole").read_config().observation_norm is True  # the resolved setting is kept
+    setup = prepare(NORMALISED)
+    with pytest.raises(KeyboardInterrupt):
+        run(setup, [*subscribers(RunFolder.create(tmp_path / "stopped"), progress=False), StopAfter(2)])
+    resume(tmp_path / "stopped")
+    assert metrics(tmp_path / "stopped") == metrics(tmp_path / "whole")
+    final, expected = tensors(RunFolder(tmp_path / "stopped").load_checkpoint()), tensors(checkpoint)
+    assert all(torch.equal(final[key], expected[key]) for key in expected)
+    searched = prepare(NORMALISED)  # the search's centre acts on normalised observations, the saved one on raw ones
+    searched.search.load_state_dict(checkpoint["search"])
+    mean, std = Moments.from_state_dict(moments).mean_std()
+    assert not torch.allclose(checkpoint["center"], searched.search.center)
+    assert torch.equal(checkpoint["center"], searched.policy.fold_input(searched.search.center[None], mean, std)[0])
+    searched.close()
 
 
 def test_model_free_cmaes_improves_the_cartpole_and_resumes_exactly(tmp_path):

@@ -73,3 +73,19 @@ def test_bad_specs_show_the_accepted_forms(spec):
     with pytest.raises(ValueError) as error:
         make_policy(spec, 4, 1)
     assert ACCEPTED_FORMS in str(error.value)
+
+
+@pytest.mark.parametrize("spec", ["linear", "linear:nobias", "multilinear:4", "mlp:8,4", "rnn:5", "lstm:3,2"])
+def test_folding_the_normalisation_into_the_first_layer_acts_as_normalising_the_input(spec):
+    policy = make_policy(spec, 6, 2)
+    generator = torch.Generator().manual_seed(0)
+    params = torch.randn(3, policy.num_params, generator=generator)
+    mean = torch.randn(6, generator=generator) if policy.input_bias else torch.zeros(6)  # no bias: scaling only
+    std = torch.rand(6, generator=generator) + 0.5
+    folded, plain = policy.initial_state(3, 4), policy.initial_state(3, 4)
+    for _ in range(3):  # recurrent policies: the memory too
+        obs = 3 * torch.randn(3, 4, 6, generator=generator) + 2
+        on_raw, folded = policy.act(policy.unflatten(policy.fold_input(params, mean, std)), obs, folded)
+        on_normalised, plain = policy.act(policy.unflatten(params), (obs - mean) / std, plain)
+        torch.testing.assert_close(on_raw, on_normalised, rtol=1e-5, atol=1e-5)
+    assert not torch.equal(policy.fold_input(params, mean, std), params)

@@ -9,7 +9,7 @@ from gymnasium import spaces
 
 from drrl.envs.batch import ActionMap, make_batch_env
 from drrl.policies import linear
-from drrl.rollout import NonFiniteOutput, episode_seeds, evaluate
+from drrl.rollout import Evaluation, NonFiniteOutput, episode_seeds, evaluate
 
 
 def one_at_a_time(policy, params, env_id, seeds, episodes):
@@ -161,3 +161,28 @@ def test_close_matches_name_only_envs_that_can_be_made_here(monkeypatch):
     with pytest.raises(ValueError) as refused:
         make_batch_env("LunarLandr-v3", 2)
     assert "unknown environment 'LunarLandr-v3'" in str(refused.value) and "did you mean" not in str(refused.value)
+
+
+def test_observation_moments_are_those_of_every_observation_acted_on_however_the_candidates_are_split():
+    env = make_batch_env("CartPole-v1", 6, "gymnasium")
+    policy = linear(4, 2)
+    params = torch.randn(6, policy.num_params, generator=torch.Generator().manual_seed(2))
+    seen = []
+
+    class Watching(linear(4, 2).__class__):
+        def act(self, weights, obs, state):
+            seen.append(obs.reshape(-1, 4).clone())
+            return super().act(weights, obs, state)
+
+    watching = Watching(4, 2, (), activation="identity")
+    whole = evaluate(watching, params, env, 1, seed=4, moments=True)
+    acted = torch.stack(seen).double().view(len(seen), 6, 4)  # (step, slot): ended slots' too
+    halves = [evaluate(policy, part, make_batch_env("CartPole-v1", 3, "gymnasium"), 1, seed=4, moments=True)
+              for part in (params[:3], params[3:])]
+    joined = Evaluation.concat(halves).moments
+    assert np.array_equal(joined.total, whole.moments.total) and np.array_equal(joined.count, whole.moments.count)
+    assert whole.moments.count.sum() == whole.steps and len(acted) == max(whole.moments.count)
+    mean, std = whole.moments.mean_std()
+    expected = torch.cat([acted[: whole.moments.count[slot], slot] for slot in range(6)])  # a slot runs from step 0
+    torch.testing.assert_close(mean.double(), expected.mean(0), rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(std.double(), expected.std(0, unbiased=False), rtol=1e-4, atol=1e-6)

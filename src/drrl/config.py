@@ -57,6 +57,9 @@ class TrainConfig(BaseModel):
                                                             "measuring may take (1: measure every eval_every)")
     checkpoint_every: int = Field(10, ge=1, le=10**9, description="generations between checkpoints")
     max_steps: int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
+    observation_norm: bool | None = Field(None, description="feed the policy observations normalised by the mean and "
+                                                            "std of all training observations so far (model-free; "
+                                                            "unset: on for envs other than drrl's own)")
     seed: int = Field(0, ge=0, le=2**32 - 1)
     device: str = "cpu"
     engine: str = Field("auto", description="what steps the env's batch (drrl.envs.batch); a run folder's config "
@@ -96,6 +99,9 @@ class TrainConfig(BaseModel):
             raise ValueError(f"symmetric sampling needs an even popsize (pairs μ ± ε), got {self.popsize}")
         if pgpe and self.sampler == "supersymmetric" and self.popsize % 4:
             raise ValueError(f"supersymmetric sampling needs a popsize divisible by 4, got {self.popsize}")
+        if self.model_based is not None and self.observation_norm:
+            raise ValueError("observation_norm is for model-free runs; a model-based run's model normalises its own "
+                             "inputs")
         if self.model_based is None and self.budget < self.episodes_per_generation:
             raise ValueError(f"budget of {self.budget} real episodes is smaller than one generation "
                              f"({self.popsize} candidates × {self.episodes_per_candidate} episode(s) each)")

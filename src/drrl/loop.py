@@ -21,6 +21,7 @@ import signal
 import threading
 import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -44,9 +45,13 @@ def derive_seed(seed: int, step: int, stream: int) -> int:
     return int(np.random.SeedSequence([seed, step, stream]).generate_state(1)[0])
 
 
-def run_generation(search: Search, backend: Backend, seed: int) -> tuple[Evaluation, dict[str, float]]:
-    """One generation: ask the search for candidates, evaluate them on the backend, tell it their mean returns."""
-    evaluation = backend.evaluate(search.ask(), seed)
+def run_generation(search: Search, backend: Backend, seed: int,
+                   deploy: Callable[[torch.Tensor], torch.Tensor] | None = None
+                   ) -> tuple[Evaluation, dict[str, float]]:
+    """One generation: ask the search for candidates, evaluate them on the backend (as ``deploy`` turns them into
+    the env's policies, if given), tell the search their mean returns."""
+    candidates = search.ask()
+    evaluation = backend.evaluate(candidates if deploy is None else deploy(candidates), seed)
     return evaluation, search.tell(evaluation.returns.to(torch.float32))
 
 
@@ -94,6 +99,11 @@ class World(ABC):
     def measure_due(self, iteration: int, counters: Counters) -> bool:
         """Whether the loop measures the centre after step ``iteration``, given what the run has spent."""
         return True
+
+    def deployed(self, params: torch.Tensor) -> torch.Tensor:
+        """The policies (P, n) that the env runs for the search's ``params``: the same, unless the world feeds the
+        search's policies transformed observations."""
+        return params
 
     def checkpoint_due(self, iteration: int) -> bool:
         return True
@@ -184,7 +194,7 @@ def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
     in the same columns (metrics.csv keeps fixed columns)."""
     if not setup.world.measure_due(iteration, counters):
         return dict.fromkeys(("center_return", *setup.entry.criteria()), float("nan"))
-    center = setup.search.center
+    center = setup.world.deployed(setup.search.center[None])[0]
     measured = measure(setup.policy, center, setup.eval_env, setup.config.max_steps,
                        derive_seed(setup.config.seed, iteration, MEASURING))
     counters.eval_episodes += measured.episodes
@@ -229,7 +239,7 @@ def checkpoint_state(setup: Setup, counters: Counters) -> dict:
     best = search.center if counters.best_center is None else counters.best_center
     return {"kind": setup.world.kind, "unit": setup.world.unit, "config": setup.config.model_dump(mode="json"),
             "search": search.state_dict(),
-            "center": search.center.detach().cpu(), "env_id": setup.entry.env_id, "best_center": best.detach().cpu(),
+            "center": setup.world.deployed(search.center[None])[0].detach().cpu(), "env_id": setup.entry.env_id, "best_center": best.detach().cpu(),
             "best_center_return": counters.best_center_return, "num_params": setup.policy.num_params,
             "wall_time": counters.wall_time, **{key: getattr(counters, key) for key in COUNTS},
             "world": setup.world.state_dict()}

@@ -7,13 +7,22 @@ takes at most ``eval_share`` of the run's env steps (a quarter by default: 50 me
 generation of 8 candidates cost six times the training itself), and after the last one. Checkpoints are taken
 every ``checkpoint_every`` generations; episode seeds derive from the run seed and the generation, so no
 environment state needs saving.
+
+With ``observation_norm`` the search's policies act on observations normalised by the mean and std of all training
+observations before this generation (:mod:`drrl.rollout.moments`; not in the thesis). The env runs them with the
+normalisation folded into their first layer (:meth:`~drrl.policies.base.Policy.fold_input`), so backends, measuring
+and ``drrl eval`` see plain policies, and the best centre is kept as the env ran it.
 """
 
 from __future__ import annotations
 
+import torch
+
 from drrl.config import TrainConfig
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
+from drrl.policies import Policy
 from drrl.rollout import Backend, NonFiniteOutput
+from drrl.rollout.moments import Moments
 
 
 class ModelFree(World):
@@ -21,8 +30,9 @@ class ModelFree(World):
 
     kind, unit = "model-free", "generation"
 
-    def __init__(self, config: TrainConfig, backend: Backend):
-        self.config, self.backend = config, backend
+    def __init__(self, config: TrainConfig, policy: Policy, backend: Backend):
+        self.config, self.policy, self.backend = config, policy, backend
+        self.moments = Moments.empty(1, policy.observation_size) if config.observation_norm else None
 
     @property
     def iterations(self) -> int:
@@ -35,9 +45,11 @@ class ModelFree(World):
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         try:
             result, metrics = run_generation(setup.search, self.backend,
-                                             derive_seed(self.config.seed, iteration, TRAINING))
+                                             derive_seed(self.config.seed, iteration, TRAINING), self.deployed)
         except NonFiniteOutput as error:
             raise NonFiniteOutput(f"generation {iteration}: {error}; stopped before updating the search") from None
+        if self.moments is not None:
+            self.moments = self.moments.plus(result.moments)
         counters.generations += 1
         counters.real_episodes += result.episodes
         counters.real_steps += result.steps
@@ -59,6 +71,18 @@ class ModelFree(World):
                     else config.eval_episodes * counters.real_steps / counters.real_episodes)
         spent = counters.eval_steps + expected
         return spent <= config.eval_share * (counters.real_steps + spent)
+
+    def deployed(self, params: torch.Tensor) -> torch.Tensor:
+        if self.moments is None:
+            return params
+        return self.policy.fold_input(params, *self.moments.mean_std())
+
+    def state_dict(self) -> dict:
+        return {} if self.moments is None else {"observation_moments": self.moments.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if self.moments is not None:
+            self.moments = Moments.from_state_dict(state["observation_moments"])
 
     def checkpoint_due(self, iteration: int) -> bool:
         return iteration % self.config.checkpoint_every == 0

@@ -68,12 +68,22 @@ def check_memory(config: TrainConfig, policy: Policy) -> None:
                          f"GiB free; use a smaller policy, popsize or model")
 
 
+def resolved(config: TrainConfig, env_id: str) -> TrainConfig:
+    """``config`` with the settings left to drrl decided for ``env_id``: the engine, and observation normalisation
+    (on for envs that are not drrl's own, whose observations can be of any scale; off for model-based runs)."""
+    native = env_id.startswith("drrl/")
+    norm = config.observation_norm
+    return config.model_copy(update={
+        "engine": choose_engine(env_id, config.engine),
+        "observation_norm": (not native and config.model_based is None) if norm is None else norm})
+
+
 def prepare(config: TrainConfig, backend: str = "local", address: str | None = None,
             workers: int | None = None) -> Setup:
     """Build envs, policy, search, world and backend; bad names, settings or unsupported spaces raise ValueError
     here, before any work."""
     entry = lookup(config.env)
-    config = config.model_copy(update={"engine": choose_engine(entry.env_id, config.engine)})
+    config = resolved(config, entry.env_id)
     probe = make_batch_env(entry.env_id, 1, config.engine)  # its spaces size the policy before anything is made
     try:
         policy = build_policy(config, probe)
@@ -83,15 +93,15 @@ def prepare(config: TrainConfig, backend: str = "local", address: str | None = N
     eval_env = make_batch_env(entry.env_id, config.eval_episodes, config.engine)
     try:
         search = build_search(config, policy)
-        workload = Workload(policy, RegisteredEnv(entry.env_id, config.engine), config.popsize, config.episodes_per_candidate,
-                            config.max_steps)
+        workload = Workload(policy, RegisteredEnv(entry.env_id, config.engine), config.popsize,
+                            config.episodes_per_candidate, config.max_steps, moments=bool(config.observation_norm))
         evaluator = make_backend(backend, workload, address=address, workers=workers)
     except BaseException:
         eval_env.close()
         raise
     try:
         world = (ModelBased(config, entry, policy, eval_env, evaluator) if config.model_based
-                 else ModelFree(config, evaluator))
+                 else ModelFree(config, policy, evaluator))
     except BaseException:
         evaluator.close()
         eval_env.close()

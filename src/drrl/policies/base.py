@@ -16,7 +16,13 @@ import torch
 
 
 class Policy(ABC):
-    """A network whose weights come from outside, one flat vector per candidate."""
+    """A network whose weights come from outside, one flat vector per candidate.
+
+    Its first weight tensor's first ``observation_size`` rows multiply the observation; with ``input_bias`` the
+    second tensor is that layer's bias.
+    """
+
+    input_bias: bool = True
 
     def __init__(self, observation_size: int, action_size: int, shapes: list[tuple[int, ...]]):
         self.observation_size = observation_size
@@ -31,6 +37,18 @@ class Policy(ABC):
             raise ValueError(f"params must have shape (P, {self.num_params}), got {tuple(params.shape)}")
         pieces = torch.split(params, self.sizes, dim=1)
         return [piece.reshape(params.shape[0], *shape) for piece, shape in zip(pieces, self.shapes)]
+
+    def fold_input(self, params: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+        """Parameters (P, n) that act on an observation o as ``params`` act on (o − mean) / std: the first layer's
+        input rows divided by std, and the shift moved into its bias. Without an input bias only the scaling folds,
+        so the policy acts as on o / std."""
+        folded = params.clone()
+        width = self.shapes[0][1]
+        rows = folded[:, : self.observation_size * width].view(len(params), self.observation_size, width)
+        rows /= std.to(rows)[:, None]
+        if self.input_bias:
+            folded[:, self.sizes[0] : self.sizes[0] + width] -= mean.to(rows) @ rows
+        return folded
 
     def initial_state(self, population: int, batch: int, device: torch.device | str = "cpu") -> Any:
         """The memory at the start of P × B fresh episodes, on ``device``; None for feed-forward policies."""

@@ -22,7 +22,7 @@ class FeedForward(Policy):
             raise ValueError(f"activation must be 'tanh' or 'identity', got {activation!r}")
         self.widths = [observation_size, *hidden, action_size]
         self.activation = activation
-        self.bias = bias
+        self.bias = self.input_bias = bias
         shapes: list[tuple[int, ...]] = []
         for fan_in, fan_out in zip(self.widths[:-1], self.widths[1:]):
             shapes.append((fan_in, fan_out))

@@ -22,13 +22,14 @@ from drrl.rollout.evaluate import Evaluation
 @dataclass(frozen=True)
 class Workload:
     """``popsize`` candidates of ``policy``, ``episodes`` episodes each, on ``env`` (a source, or a registered id)
-    cut at ``max_steps``."""
+    cut at ``max_steps``; with ``moments``, the observations' sums come back too."""
 
     policy: Policy
     env: EnvSource | str
     popsize: int
     episodes: int
     max_steps: int | None = None
+    moments: bool = False
 
     def __post_init__(self):
         if isinstance(self.env, str):

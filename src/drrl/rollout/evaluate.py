@@ -16,6 +16,7 @@ from gymnasium.vector import VectorEnv
 
 from drrl.envs.batch import ActionMap
 from drrl.policies.base import Policy
+from drrl.rollout.moments import Moments
 
 
 class NonFiniteOutput(RuntimeError):
@@ -30,6 +31,7 @@ class Evaluation:
     terminated: torch.Tensor  # (P, E) bool: the episode ended by failure or success, not by a time limit
     steps: int  # environment steps taken by episodes still running, summed over slots
     episodes: int
+    moments: Moments | None = None  # of the observations acted on in running episodes, a row per slot, if asked
 
     @property
     def returns(self) -> torch.Tensor:
@@ -39,9 +41,11 @@ class Evaluation:
     @staticmethod
     def concat(parts: list[Evaluation]) -> Evaluation:
         """One evaluation of all candidates from evaluations of consecutive chunks of them."""
+        moments = [part.moments for part in parts]
         return Evaluation(episode_returns=torch.cat([part.episode_returns for part in parts]),
                           terminated=torch.cat([part.terminated for part in parts]),
-                          steps=sum(part.steps for part in parts), episodes=sum(part.episodes for part in parts))
+                          steps=sum(part.steps for part in parts), episodes=sum(part.episodes for part in parts),
+                          moments=None if any(m is None for m in moments) else Moments.concat(moments))
 
 
 def episode_seeds(seed: int, population: int, episodes: int) -> list[int]:
@@ -56,10 +60,11 @@ def episode_seeds(seed: int, population: int, episodes: int) -> list[int]:
 
 @torch.inference_mode()
 def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int = 1, seed: int | None = None,
-             max_steps: int | None = None) -> Evaluation:
+             max_steps: int | None = None, moments: bool = False) -> Evaluation:
     """Run each of the P candidates in ``params`` (P, n) for ``episodes`` episodes on ``env`` at once.
 
-    ``max_steps`` cuts episodes that have not ended by then (for envs without a time limit of their own).
+    ``max_steps`` cuts episodes that have not ended by then (for envs without a time limit of their own);
+    ``moments`` sums the observations acted on (:class:`~drrl.rollout.moments.Moments`).
     """
     population = params.shape[0]
     slots = population * episodes
@@ -77,7 +82,10 @@ def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int
     terminated_slots = np.zeros(slots, dtype=bool)
     steps = 0
     t = 0
+    seen = Moments.empty(slots, policy.observation_size) if moments else None
     while running.any() and (max_steps is None or t < max_steps):
+        if seen is not None:
+            seen.add(obs, running)
         obs_t = torch.as_tensor(obs, dtype=torch.float32, device=params.device).view(population, episodes, -1)
         raw, state = policy.act(weights, obs_t, state)
         obs, reward, terminated, truncated, _ = env.step(action_map(raw.reshape(slots, -1)))
@@ -92,7 +100,7 @@ def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int
     episode_returns = torch.as_tensor(returns, dtype=torch.float64).view(population, episodes)
     return Evaluation(episode_returns=episode_returns,
                       terminated=torch.as_tensor(terminated_slots).view(population, episodes),
-                      steps=steps, episodes=slots)
+                      steps=steps, episodes=slots, moments=seen)
 
 
 def _check_finite(what: str, values: np.ndarray, running: np.ndarray, step: int, episodes: int) -> None:

@@ -58,7 +58,7 @@ class RolloutWorker:
     def evaluate(self, params: np.ndarray, seed: int) -> Evaluation:
         work = self.workload
         env = self._env(params.shape[0])
-        return evaluate(work.policy, torch.tensor(params), env, work.episodes, seed=seed,
+        return evaluate(work.policy, torch.tensor(params), env, work.episodes, seed=seed, moments=work.moments,
                         max_steps=work.max_steps)
 
     def pid(self) -> int:
