@@ -98,6 +98,17 @@ def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
     assert "±" in evaluation.output and "balanced" not in evaluation.output
 
 
+def test_a_gymnasium_task_with_a_reward_threshold_is_judged_solved_or_not_by_it(tmp_path):
+    result, out = train(tmp_path, "Acrobot-v1", "--engine", "gymnasium", "--budget", "4", "--popsize", "4",
+                        "--eval-episodes", "2", "--quiet")
+    assert result.exit_code == 0, result.output
+    assert "solved" in metrics(out)[-1]
+    assert "the centre met none of Acrobot-v1's criteria (solved); try a larger --budget" in result.output
+    evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "2"])
+    assert "solved:       no" in evaluation.output
+    assert "(Gymnasium counts Acrobot-v1 as solved at a mean return ≥ -100)" in evaluation.output
+
+
 def test_config_file_is_read_and_overridden_by_options(tmp_path):
     config = tmp_path / "c.toml"
     config.write_text('budget = 20\npopsize = 10\neval_episodes = 3\nsampler = "reinforce"\n')

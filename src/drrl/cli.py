@@ -182,9 +182,12 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
                f"{counters.rows[-1]['center_return']:.1f} (best {counters.best_center_return:.1f}, {unit} "
                f"{counters.best_iteration})")
     suggested = setup.entry.suggested
-    if suggested and setup.entry.criteria() and not counters.best_center_criteria:
+    if setup.entry.criteria() and not counters.best_center_criteria:
         options = " ".join(f"--{name.replace('_', '-')} {value}" for name, value in suggested.items())
-        click.echo(f"the centre met none of {setup.entry.env_id}'s criteria; settings that suit it: {options}")
+        advice = (f"settings that suit it: {options}" if suggested else
+                  "try a larger --budget, more --episodes-per-candidate, another --sigma-init or --policy mlp:32")
+        click.echo(f"the centre met none of {setup.entry.env_id}'s criteria ({', '.join(setup.entry.criteria())}); "
+                   f"{advice}")
     click.echo(f"run folder: {out} (metrics.csv, learning_curve.png, checkpoint.safetensors)")
     click.echo(f"next: drrl eval {out}")
 

@@ -3,8 +3,9 @@
 An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what "solved" means) and how
 ``drrl eval`` explains it, the task's reward and end in closed form of the observation when there is one (imagined
 episodes then use it instead of a learned reward), and settings that suit the task. Each environment registers its
-entry from its own module (:func:`register`), which also registers it with Gymnasium; an environment that drrl
-does not know is any registered Gymnasium id, with an empty entry.
+entry from its own module (:func:`register`), which also registers it with Gymnasium. An environment that drrl
+does not know is any registered Gymnasium id; its entry has the verdict "solved" where Gymnasium gives the task a
+``reward_threshold`` (a mean return at or above it), and nothing else.
 """
 
 from __future__ import annotations
@@ -87,4 +88,19 @@ def lookup(name: str) -> EnvEntry:
         shown = repr(name) if len(name) <= 60 else repr(name[:57]) + "..."
         raise ValueError(f"unknown environment {shown}; {hint}drrl's own: {', '.join(aliases())}; or any id "
                          f"registered with Gymnasium (e.g. Pendulum-v1; gymnasium.pprint_registry() lists them)")
-    return ENTRIES.get(env_id, EnvEntry(env_id))
+    return ENTRIES.get(env_id) or gymnasium_entry(env_id)
+
+
+def gymnasium_entry(env_id: str) -> EnvEntry:
+    """The entry of a Gymnasium env drrl does not know: solved at its spec's ``reward_threshold``, if it has one."""
+    threshold = gymnasium.spec(env_id).reward_threshold
+    if threshold is None:
+        return EnvEntry(env_id)
+
+    def verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) -> dict[str, bool]:
+        return {"solved": bool(episode_returns.mean() >= threshold)}
+
+    def explain(episode_returns: torch.Tensor, terminated: torch.Tensor) -> str:
+        return f"(Gymnasium counts {env_id} as solved at a mean return ≥ {threshold:g})"
+
+    return EnvEntry(env_id, verdict=verdict, explain=explain)
