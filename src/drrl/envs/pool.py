@@ -5,11 +5,16 @@ EnvPool seeds an environment only when it makes it, so a seeded reset makes the 
 sub-environment: episode e of every candidate then starts from the same state, as on the other engines. EnvPool
 takes 31-bit seeds; drrl's 64-bit episode seeds are cut to their low 31 bits. Its episodes are EnvPool's own
 implementation of each task, not bit for bit Gymnasium's, so a run's engine is part of its config.
+
+EnvPool steps its envs on worker threads, one per CPU this process may run on: a worker that has to share the
+caller's only core makes every step about three times slower (Acrobot, 100 envs: 0.64 ms against 0.19 ms).
+Making a pool costs about 2.5 ms per MuJoCo env (its model is parsed anew), paid once a generation.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import warnings
 
 import numpy as np
@@ -55,7 +60,8 @@ class PooledEpisodes(EpisodeSlots):
                 self._pool.close()
             fresh = np.random.SeedSequence().generate_state(self.num_envs)  # for the unseeded ones
             env_seeds = [int(fresh[i] if seed is None else seed) % 2**SEED_BITS for i, seed in enumerate(seeds)]
-            self._pool = envpool.make_gymnasium(self.env_id, num_envs=self.num_envs, env_seed=env_seeds)
+            self._pool = envpool.make_gymnasium(self.env_id, num_envs=self.num_envs, env_seed=env_seeds,
+                                                num_threads=min(self.num_envs, _usable_cpus()))
         with _quiet():  # the first reset builds the pool's spaces
             return self._pool.reset()[0]
 
@@ -67,6 +73,10 @@ class PooledEpisodes(EpisodeSlots):
     def close_extras(self, **kwargs):
         if self._pool is not None:
             self._pool.close()
+
+
+def _usable_cpus() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 @contextlib.contextmanager
