@@ -152,7 +152,7 @@ class NaNRewardEnv(gymnasium.Env):
 def test_non_finite_returns_stop_the_run_name_the_candidate_and_keep_the_folder(tmp_path):
     gymnasium.register("drrl-test/NaNReward-v0", entry_point=NaNRewardEnv)
     result, out = train(tmp_path, "--env", "drrl-test/NaNReward-v0", "--budget", "8", "--popsize", "4",
-                        "--eval-episodes", "1", "--quiet")
+                        "--policy", "linear:nobias", "--sigma-init", "1", "--eval-episodes", "1", "--quiet")
     assert result.exit_code == 1
     assert "generation 1: " in result.output and "candidate 0" in result.output
     assert "run folder and checkpoint (generation 0) kept" in result.output

@@ -10,7 +10,7 @@ import click
 from pydantic import ValidationError
 
 from drrl import __version__
-from drrl.config import TrainConfig, describe_errors, load_config_file
+from drrl.config import GYMNASIUM_DEFAULTS, TrainConfig, describe_errors, load_config_file
 from drrl.envs.batch import ENGINES, make_batch_env
 from drrl.envs.registry import aliases, lookup
 from drrl.loop import Counters, Setup, derive_seed, measure, run
@@ -33,7 +33,8 @@ ERROR_LOG = "error.log"  # in the run folder: the traceback of whatever stopped 
 def setting(name: str, kind, help: str):
     """A `drrl train` option for TrainConfig field ``name``; left unset, the config file or the default applies."""
     default = TrainConfig.model_fields[name].default
-    return click.option(f"--{name.replace('_', '-')}", name, type=kind, help=f"{help}  [default: {default}]")
+    other = f"; Gymnasium's envs: {GYMNASIUM_DEFAULTS[name]}" if name in GYMNASIUM_DEFAULTS else ""
+    return click.option(f"--{name.replace('_', '-')}", name, type=kind, help=f"{help}  [default: {default}{other}]")
 
 
 class Commands(click.Group):

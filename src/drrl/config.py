@@ -11,11 +11,18 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from drrl.envs.batch import ENGINES
+from drrl.envs.registry import aliases
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings, one_of
 from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 
 MAX_CONFIG_BYTES = 1024 * 1024
+# Model-free defaults for Gymnasium's envs (not drrl's own): observations are normalised and actions scaled from
+# [-1, 1] to the env's bounds, so one σ suits envs of any scale. A linear policy with a bias (the normalisation's
+# shift folds into it), small steps and centred ranks, as ARS (Mania et al. 2018) searched MuJoCo's tasks; chosen on
+# Acrobot, MountainCarContinuous, InvertedDoublePendulum, Reacher and Hopper (BENCHMARKS.md).
+GYMNASIUM_DEFAULTS = {"policy": "linear", "popsize": 16, "sigma_init": 0.05, "center_lr": 0.02,
+                      "fitness_shaping": "centered_ranks", "budget": 2000}
 CHOICES = {"search": SEARCHES, "sampler": SAMPLERS, "optimizer": OPTIMIZERS,
            "fitness_shaping": FITNESS_SHAPINGS, "engine": ENGINES}  # string settings
 
@@ -29,8 +36,9 @@ class TrainConfig(BaseModel):
     centre from drifting away from the optimum once there.
 
     ``model_based`` set makes a model-based run; the fields it leaves unset then start from
-    :data:`~drrl.models.settings.MODEL_BASED_DEFAULTS` instead of the model-free defaults (the one place they
-    merge). sampler, optimizer, center_lr, sigma_lr, fitness_shaping, baseline_decay and max_sigma_change are
+    :data:`~drrl.models.settings.MODEL_BASED_DEFAULTS` instead of the model-free defaults. A model-free run on an
+    env that is not drrl's own starts from :data:`GYMNASIUM_DEFAULTS` instead. Both merge in one place. sampler,
+    optimizer, center_lr, sigma_lr, fitness_shaping, baseline_decay and max_sigma_change are
     PGPE's; CMA-ES (``search = "cmaes"`` or ``"sep-cmaes"``) uses popsize, sigma_init and seed only.
     """
 
@@ -87,9 +95,14 @@ class TrainConfig(BaseModel):
 
     @model_validator(mode="before")
     @classmethod
-    def _model_based_defaults(cls, data):
-        if isinstance(data, dict) and data.get("model_based") is not None:
+    def _defaults_for_the_run(cls, data):
+        if not isinstance(data, dict):
+            return data
+        if data.get("model_based") is not None:
             return {**MODEL_BASED_DEFAULTS, **data}
+        env = data.get("env", "cartpole")
+        if isinstance(env, str) and env not in aliases() and not env.startswith("drrl/"):
+            return {**GYMNASIUM_DEFAULTS, **data}
         return data
 
     @model_validator(mode="after")
