@@ -21,8 +21,8 @@ MAX_CONFIG_BYTES = 1024 * 1024
 # [-1, 1] to the env's bounds, so one σ suits envs of any scale. A linear policy with a bias (the normalisation's
 # shift folds into it), small steps and centred ranks, as ARS (Mania et al. 2018) searched MuJoCo's tasks; chosen on
 # Acrobot, MountainCarContinuous, InvertedDoublePendulum, Reacher and Hopper (BENCHMARKS.md).
-GYMNASIUM_DEFAULTS = {"policy": "linear", "popsize": 16, "sigma_init": 0.05, "center_lr": 0.02,
-                      "fitness_shaping": "centered_ranks", "budget": 2000}
+GYMNASIUM_DEFAULTS = {"policy": "linear", "popsize": 16, "sigma_init": 0.025, "center_lr": 0.02,
+                      "fitness_shaping": "centered_ranks", "budget": 3200}
 CHOICES = {"search": SEARCHES, "sampler": SAMPLERS, "optimizer": OPTIMIZERS,
            "fitness_shaping": FITNESS_SHAPINGS, "engine": ENGINES}  # string settings
 

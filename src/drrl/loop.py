@@ -238,8 +238,8 @@ def checkpoint_state(setup: Setup, counters: Counters) -> dict:
     search = setup.search
     best = search.center if counters.best_center is None else counters.best_center
     return {"kind": setup.world.kind, "unit": setup.world.unit, "config": setup.config.model_dump(mode="json"),
-            "search": search.state_dict(),
-            "center": setup.world.deployed(search.center[None])[0].detach().cpu(), "env_id": setup.entry.env_id, "best_center": best.detach().cpu(),
+            "search": search.state_dict(), "center": setup.world.deployed(search.center[None])[0].detach().cpu(),
+            "env_id": setup.entry.env_id, "best_center": best.detach().cpu(),
             "best_center_return": counters.best_center_return, "num_params": setup.policy.num_params,
             "wall_time": counters.wall_time, **{key: getattr(counters, key) for key in COUNTS},
             "world": setup.world.state_dict()}

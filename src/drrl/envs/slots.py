@@ -75,5 +75,5 @@ class EpisodeSlots(VectorEnv):
     @abstractmethod
     def advance(self, slots: np.ndarray, actions: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Step sub-environments ``slots`` (ascending) with ``actions`` (one row each): observations, rewards, terminated and
-        truncated, in the order of ``slots``."""
+        """Step sub-environments ``slots`` (ascending) with ``actions`` (one row each): observations, rewards,
+        terminated and truncated, in the order of ``slots``."""
