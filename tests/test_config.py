@@ -44,3 +44,13 @@ def test_the_config_files_the_docs_point_to_are_valid():
     assert paths, "configs/ holds no config files"
     for path in paths:
         TrainConfig.model_validate(with_model_based(load_config_file(path), False, {}))  # raises if invalid
+
+
+def test_gymnasiums_envs_start_from_their_own_model_free_defaults_and_given_settings_win():
+    hopper = TrainConfig(env="Hopper-v5")
+    assert (hopper.policy, hopper.sigma_init, hopper.popsize, hopper.fitness_shaping) == ("linear", 0.025, 16,
+                                                                                         "centered_ranks")
+    assert TrainConfig(env="Hopper-v5", sigma_init=0.1).sigma_init == 0.1
+    for own in ("cartpole", "drrl/CartPole-v0", "baxter-reach-right"):
+        assert TrainConfig(env=own).model_dump(exclude={"env"}) == TrainConfig().model_dump(exclude={"env"})
+    assert TrainConfig(env="Hopper-v5", model_based={}).policy == TrainConfig().policy  # model-based: its own
