@@ -78,6 +78,8 @@ def main(ctx: click.Context, debug: bool) -> None:
 @setting("eval_episodes", INTEGER, "episodes measuring the centre policy")
 @setting("eval_every", INTEGER, "generations between measurements")
 @setting("eval_share", float, "the most of a model-free run's env steps that measuring may take")
+@setting("observation_norm", click.BOOL, "feed the policy observations normalised by running statistics (unset: "
+                                        "on for Gymnasium's envs, model-free)")
 @setting("seed", INTEGER, "random seed")
 @setting("checkpoint_every", INTEGER, "generations between checkpoints")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
