@@ -10,6 +10,8 @@ import torch
 from click.testing import CliRunner
 
 from drrl.cli import main
+from drrl.config import TrainConfig
+from drrl.envs.gymnasium_tasks import SUGGESTED
 from drrl.runs import RunFolder
 from drrl.train import prepare
 
@@ -94,8 +96,16 @@ def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
                         "--eval-episodes", "2", "--quiet")
     assert result.exit_code == 0, result.output
     assert int(metrics(out)[-1]["real_steps"]) == 8 * 200
+    assert ("the centre met none of Pendulum-v1's criteria (solved); settings that suit it: --search cmaes --policy "
+            "mlp:16 --popsize 64 --episodes-per-candidate 8 --sigma-init 0.5 --budget 51200") in result.output
     evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "2"])
     assert "±" in evaluation.output and "balanced" not in evaluation.output
+    assert "(Pendulum-v1 counts as solved at a mean return ≥ -200)" in evaluation.output
+
+
+def test_the_settings_suggested_for_gymnasiums_tasks_are_valid_settings():
+    for env_id, settings in SUGGESTED.items():
+        TrainConfig.model_validate({"env": env_id, **settings})
 
 
 def test_a_gymnasium_task_with_a_reward_threshold_is_judged_solved_or_not_by_it(tmp_path):
@@ -106,7 +116,7 @@ def test_a_gymnasium_task_with_a_reward_threshold_is_judged_solved_or_not_by_it(
     assert "the centre met none of Acrobot-v1's criteria (solved); try a larger --budget" in result.output
     evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "2"])
     assert "solved:       no" in evaluation.output
-    assert "(Gymnasium counts Acrobot-v1 as solved at a mean return ≥ -100)" in evaluation.output
+    assert "(Acrobot-v1 counts as solved at a mean return ≥ -100)" in evaluation.output
 
 
 def test_config_file_is_read_and_overridden_by_options(tmp_path):

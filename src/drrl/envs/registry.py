@@ -5,7 +5,8 @@ An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what
 episodes then use it instead of a learned reward), and settings that suit the task. Each environment registers its
 entry from its own module (:func:`register`), which also registers it with Gymnasium. An environment that drrl
 does not know is any registered Gymnasium id; its entry has the verdict "solved" where Gymnasium gives the task a
-``reward_threshold`` (a mean return at or above it), and nothing else.
+``reward_threshold`` or the field a usual level (a mean return at or above it), and settings that reach it where
+they were measured (:mod:`drrl.envs.gymnasium_tasks`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from dataclasses import dataclass, field
 import gymnasium
 import numpy as np
 import torch
+
+from drrl.envs.gymnasium_tasks import SOLVED_LEVELS, SUGGESTED
 
 # (episode_returns (P, E), terminated (P, E)) -> {criterion: met}
 Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
@@ -92,8 +95,10 @@ def lookup(name: str) -> EnvEntry:
 
 
 def gymnasium_entry(env_id: str) -> EnvEntry:
-    """The entry of a Gymnasium env drrl does not know: solved at its spec's ``reward_threshold``, if it has one."""
+    """The entry of a Gymnasium env drrl has no module for: solved at its spec's ``reward_threshold`` (or the usual
+    level), if there is one, with the settings known to reach it."""
     threshold = gymnasium.spec(env_id).reward_threshold
+    threshold = SOLVED_LEVELS.get(env_id) if threshold is None else threshold
     if threshold is None:
         return EnvEntry(env_id)
 
@@ -101,6 +106,6 @@ def gymnasium_entry(env_id: str) -> EnvEntry:
         return {"solved": bool(episode_returns.mean() >= threshold)}
 
     def explain(episode_returns: torch.Tensor, terminated: torch.Tensor) -> str:
-        return f"(Gymnasium counts {env_id} as solved at a mean return ≥ {threshold:g})"
+        return f"({env_id} counts as solved at a mean return ≥ {threshold:g})"
 
-    return EnvEntry(env_id, verdict=verdict, explain=explain)
+    return EnvEntry(env_id, verdict=verdict, explain=explain, suggested=SUGGESTED.get(env_id, {}))
