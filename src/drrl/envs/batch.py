@@ -28,6 +28,7 @@ from drrl.envs.serial import SerialEpisodes
 
 ENGINES = ("auto", "native", "envpool", "gymnasium")
 
+
 class EnvSource(Protocol):
     """Something a rollout process can rebuild a batched env from: small, picklable, made anew in each worker."""
 
@@ -55,6 +56,8 @@ def choose_engine(name: str, engine: str = "auto") -> str:
     """The engine that batches env ``name``: ``engine`` itself if it can, the first that can for ``auto``."""
     env_id = resolve_env_id(name)
     native = env_id.startswith("drrl/")
+    if engine not in ENGINES:
+        raise ValueError(f"unknown engine {engine!r}; choose one of: {', '.join(ENGINES)}")
     if engine == "auto":
         return "native" if native else "envpool" if pool.installed() and pool.ships(env_id) else "gymnasium"
     if engine == "native" and not native:
@@ -64,8 +67,6 @@ def choose_engine(name: str, engine: str = "auto") -> str:
             raise ValueError('engine envpool is not installed; pip install "drrl[envpool]"')
         if not pool.ships(env_id):
             raise ValueError(f"EnvPool has no {env_id}; use engine gymnasium")
-    if engine not in ENGINES:
-        raise ValueError(f"unknown engine {engine!r}; choose one of: {', '.join(ENGINES)}")
     return engine
 
 
