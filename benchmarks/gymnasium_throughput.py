@@ -48,11 +48,10 @@ class Drrl:
 
     def __init__(self, env: str, engine: str, popsize: int):
         self.name = f"drrl ({engine})"
-        plain = {"observation_norm": False} if "observation_norm" in TrainConfig.model_fields else {}  # as EvoTorch
         config = TrainConfig(env=env, policy="linear", popsize=popsize, sampler="symmetric", optimizer="clipup",
                              fitness_shaping="centered_ranks", sigma_init=SIGMA_INIT, center_lr=CENTER_LR,
                              sigma_lr=SIGMA_LR, max_sigma_change=MAX_SIGMA_CHANGE, engine=engine,
-                             budget=10**9, eval_every=10**9, eval_episodes=1, **plain)
+                             budget=10**9, eval_every=10**9, eval_episodes=1, observation_norm=False)  # as EvoTorch
         self.setup = prepare(config)
         self.generation = 0
 
