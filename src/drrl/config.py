@@ -11,7 +11,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from drrl.envs.batch import ENGINES
-from drrl.envs.registry import aliases
+from drrl.envs.registry import is_own
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings, one_of
 from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
@@ -101,7 +101,7 @@ class TrainConfig(BaseModel):
         if data.get("model_based") is not None:
             return {**MODEL_BASED_DEFAULTS, **data}
         env = data.get("env", "cartpole")
-        if isinstance(env, str) and env not in aliases() and not env.startswith("drrl/"):
+        if isinstance(env, str) and not is_own(env):
             return {**GYMNASIUM_DEFAULTS, **data}
         return data
 

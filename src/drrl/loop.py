@@ -194,7 +194,7 @@ def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
     in the same columns (metrics.csv keeps fixed columns)."""
     if not setup.world.measure_due(iteration, counters):
         return dict.fromkeys(("center_return", *setup.entry.criteria()), float("nan"))
-    center = setup.world.deployed(setup.search.center[None])[0]
+    center = deployed_center(setup)
     measured = measure(setup.policy, center, setup.eval_env, setup.config.max_steps,
                        derive_seed(setup.config.seed, iteration, MEASURING))
     counters.eval_episodes += measured.episodes
@@ -205,6 +205,11 @@ def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
         counters.best_center, counters.best_center_return = center, center_return
         counters.best_center_criteria, counters.best_iteration = sum(met.values()), iteration
     return {"center_return": center_return, **{name: int(ok) for name, ok in met.items()}}
+
+
+def deployed_center(setup: Setup) -> torch.Tensor:
+    """The search's centre μ as the env runs it (:meth:`World.deployed`)."""
+    return setup.world.deployed(setup.search.center[None])[0]
 
 
 def better_center(met: dict[str, bool], center_return: float, best_criteria: int, best_return: float) -> bool:
@@ -238,7 +243,7 @@ def checkpoint_state(setup: Setup, counters: Counters) -> dict:
     search = setup.search
     best = search.center if counters.best_center is None else counters.best_center
     return {"kind": setup.world.kind, "unit": setup.world.unit, "config": setup.config.model_dump(mode="json"),
-            "search": search.state_dict(), "center": setup.world.deployed(search.center[None])[0].detach().cpu(),
+            "search": search.state_dict(), "center": deployed_center(setup).detach().cpu(),
             "env_id": setup.entry.env_id, "best_center": best.detach().cpu(),
             "best_center_return": counters.best_center_return, "num_params": setup.policy.num_params,
             "wall_time": counters.wall_time, **{key: getattr(counters, key) for key in COUNTS},

@@ -15,7 +15,7 @@ import torch
 
 from drrl.config import TrainConfig
 from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, make_batch_env, observation_size
-from drrl.envs.registry import lookup
+from drrl.envs.registry import is_own, lookup
 from drrl.loop import Counters, Setup, Subscriber, check_checkpoint, restore, run
 from drrl.model_based import ModelBased
 from drrl.model_free import ModelFree
@@ -71,11 +71,10 @@ def check_memory(config: TrainConfig, policy: Policy) -> None:
 def resolved(config: TrainConfig, env_id: str) -> TrainConfig:
     """``config`` with the settings left to drrl decided for ``env_id``: the engine, and observation normalisation
     (on for envs that are not drrl's own, whose observations can be of any scale; off for model-based runs)."""
-    native = env_id.startswith("drrl/")
     norm = config.observation_norm
     return config.model_copy(update={
         "engine": choose_engine(env_id, config.engine),
-        "observation_norm": (not native and config.model_based is None) if norm is None else norm})
+        "observation_norm": (not is_own(env_id) and config.model_based is None) if norm is None else norm})
 
 
 def prepare(config: TrainConfig, backend: str = "local", address: str | None = None,

@@ -23,7 +23,7 @@ from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
 from drrl.envs import pool
-from drrl.envs.registry import lookup
+from drrl.envs.registry import is_own, lookup
 from drrl.envs.serial import SerialEpisodes
 
 ENGINES = ("auto", "native", "envpool", "gymnasium")
@@ -55,7 +55,7 @@ def resolve_env_id(name: str) -> str:
 def choose_engine(name: str, engine: str = "auto") -> str:
     """The engine that batches env ``name``: ``engine`` itself if it can, the first that can for ``auto``."""
     env_id = resolve_env_id(name)
-    native = env_id.startswith("drrl/")
+    native = is_own(env_id)
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; choose one of: {', '.join(ENGINES)}")
     if engine == "auto":

@@ -67,6 +67,11 @@ def aliases() -> dict[str, str]:
     return {entry.alias: env_id for env_id, entry in ENTRIES.items() if entry.alias}
 
 
+def is_own(name: str) -> bool:
+    """Whether ``name`` (an alias or a Gymnasium id) is one of drrl's own environments."""
+    return aliases().get(name, name) in ENTRIES
+
+
 def _can_make(name: str) -> bool:
     """Whether the module behind a registered id imports here (its dependencies are installed)."""
     entry_point = gymnasium.spec(aliases().get(name, name)).entry_point
