@@ -28,8 +28,6 @@ EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measu
 ERROR_LOG = "error.log"  # in the run folder: the traceback of whatever stopped the run
 
 
-
-
 def setting(name: str, kind, help: str):
     """A `drrl train` option for TrainConfig field ``name``; left unset, the config file or the default applies."""
     default = TrainConfig.model_fields[name].default

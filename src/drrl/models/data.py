@@ -156,7 +156,8 @@ def _episode_windows(episode: Episode, unfold: int, length: int) -> tuple[np.nda
 def model_actions(actions, space: spaces.Space) -> np.ndarray:
     """Actions as the world model reads them, (N, a) float32: a Box's values, a Discrete's choice one-hot."""
     if isinstance(space, spaces.Discrete):
-        return np.eye(int(space.n), dtype=np.float32)[np.asarray(actions, dtype=np.int64).reshape(-1) - int(space.start)]
+        choices = np.asarray(actions, dtype=np.int64).reshape(-1) - int(space.start)
+        return np.eye(int(space.n), dtype=np.float32)[choices]
     actions = np.asarray(actions, dtype=np.float32)
     return actions.reshape(len(actions), -1)
 
@@ -170,7 +171,8 @@ class EpisodeRecorder(VectorWrapper):
     """Records the first episode of every sub-environment while ``drrl.rollout.evaluate`` (or anyone) steps it.
 
     The actions recorded are those the env receives (after the policy's outputs are bounded; a Discrete choice
-    one-hot), so the model learns the env's own response to them. Later episodes of a sub-environment (after its autoreset) are not recorded.
+    one-hot), so the model learns the env's own response to them. Later episodes of a sub-environment (after its
+    autoreset) are not recorded.
     """
 
     def __init__(self, env: VectorEnv):
