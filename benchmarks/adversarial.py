@@ -36,21 +36,73 @@ from drrl.runs import CHECKPOINT, CONFIG, METRICS
 from drrl.train import prepare
 
 FIELDS = [*TrainConfig.model_fields, "popsise", "model-based"]
-NASTY = [None, True, -1, 0, 2**64, 1e308, float("inf"), float("nan"), -0.0, "", "٣", "x" * 5000, [], {}, [1, 2],
-         {"hidden": [0]}, "cartpole\x00", "../..", "1e25", " 8 "]
-PLAUSIBLE = [1, 2, 4, 8, 16, 0.01, 0.1, 1.0, 3.0, "cartpole", "cartpole-po", "cartpole-swingup", "Pendulum-v1",
-             "CartPole-v1", "linear", "linear:nobias", "mlp:4", "rnn:2", "lstm:2", "pgpe", "cmaes", "sep-cmaes",
-             "symmetric", "reinforce", "supersymmetric", "sgd", "adam", "clipup", "centered_ranks", "none", "cpu",
-             {}, {"hidden": [8], "unfold": 2}, {"generations": 2, "fit_updates": 10}]
+NASTY = [
+    None,
+    True,
+    -1,
+    0,
+    2**64,
+    1e308,
+    float("inf"),
+    float("nan"),
+    -0.0,
+    "",
+    "٣",
+    "x" * 5000,
+    [],
+    {},
+    [1, 2],
+    {"hidden": [0]},
+    "cartpole\x00",
+    "../..",
+    "1e25",
+    " 8 ",
+]
+PLAUSIBLE = [
+    1,
+    2,
+    4,
+    8,
+    16,
+    0.01,
+    0.1,
+    1.0,
+    3.0,
+    "cartpole",
+    "cartpole-po",
+    "cartpole-swingup",
+    "Pendulum-v1",
+    "CartPole-v1",
+    "linear",
+    "linear:nobias",
+    "mlp:4",
+    "rnn:2",
+    "lstm:2",
+    "pgpe",
+    "cmaes",
+    "sep-cmaes",
+    "symmetric",
+    "reinforce",
+    "supersymmetric",
+    "sgd",
+    "adam",
+    "clipup",
+    "centered_ranks",
+    "none",
+    "cpu",
+    {},
+    {"hidden": [8], "unfold": 2},
+    {"generations": 2, "fit_updates": 10},
+]
 
 
 def outcome(call) -> str:
-    """"accepted", "refused" (a ValueError or a message) or "traceback: ..." for anything else."""
+    """ "accepted", "refused" (a ValueError or a message) or "traceback: ..." for anything else."""
     try:
         call()
     except (ValueError, ValidationError):
         return "refused"
-    except Exception as error:  # noqa: BLE001 (what the sweep is looking for)
+    except Exception as error:
         return f"traceback: {type(error).__name__}: {str(error)[:120]}"
     return "accepted"
 
@@ -58,8 +110,10 @@ def outcome(call) -> str:
 def sweep_settings(rng: random.Random, count: int) -> Counter:
     results = Counter()
     for _ in range(count):
-        chosen = {name: rng.choice(PLAUSIBLE if rng.random() < 0.7 else NASTY)
-                  for name in rng.sample(FIELDS, rng.randint(0, 5))}
+        chosen = {
+            name: rng.choice(PLAUSIBLE if rng.random() < 0.7 else NASTY)
+            for name in rng.sample(FIELDS, rng.randint(0, 5))
+        }
 
         def validate_and_prepare(chosen=chosen):
             try:
@@ -76,8 +130,10 @@ def sweep_settings(rng: random.Random, count: int) -> Counter:
 
 def sweep_files(rng: random.Random, count: int, folder: Path) -> Counter:
     results = Counter()
-    valid = {".toml": 'env = "cartpole"\npopsize = 8\nbudget = 16\n[model_based]\nhidden = [8]\n',
-             ".json": json.dumps({"env": "cartpole", "popsize": 8, "budget": 16, "model_based": {"hidden": [8]}})}
+    valid = {
+        ".toml": 'env = "cartpole"\npopsize = 8\nbudget = 16\n[model_based]\nhidden = [8]\n',
+        ".json": json.dumps({"env": "cartpole", "popsize": 8, "budget": 16, "model_based": {"hidden": [8]}}),
+    }
     for number in range(count):
         suffix = rng.choice(list(valid))
         data = bytearray(valid[suffix].encode())
@@ -102,11 +158,21 @@ def sweep_files(rng: random.Random, count: int, folder: Path) -> Counter:
 def damage(rng: random.Random, run: Path) -> str:
     """One random damage to ``run``; its name."""
     checkpoint, config = run / CHECKPOINT, run / CONFIG
-    kind = rng.choice(["truncate", "extend", "flip checkpoint", "flip config", "edit config", "rename digest",
-                       "remove file", "cut metrics"])
+    kind = rng.choice(
+        [
+            "truncate",
+            "extend",
+            "flip checkpoint",
+            "flip config",
+            "edit config",
+            "rename digest",
+            "remove file",
+            "cut metrics",
+        ]
+    )
     if kind == "truncate":
         data = checkpoint.read_bytes()
-        checkpoint.write_bytes(data[:rng.randrange(len(data))])
+        checkpoint.write_bytes(data[: rng.randrange(len(data))])
     elif kind == "extend":
         checkpoint.write_bytes(checkpoint.read_bytes() + bytes(rng.randint(1, 64)))
     elif kind in ("flip checkpoint", "flip config"):
@@ -124,7 +190,7 @@ def damage(rng: random.Random, run: Path) -> str:
         from safetensors.torch import save_file
 
         with safe_open(checkpoint, framework="pt") as handle:
-            tensors = {key: handle.get_tensor(key) for key in handle.keys()}
+            tensors = {key: handle.get_tensor(key) for key in handle}
             metadata = handle.metadata()
         metadata["sha257"] = metadata.pop("sha256")
         save_file(tensors, checkpoint, metadata=metadata)
@@ -132,7 +198,7 @@ def damage(rng: random.Random, run: Path) -> str:
         (run / rng.choice([CHECKPOINT, CONFIG, METRICS])).unlink()
     else:
         lines = (run / METRICS).read_text().splitlines(keepends=True)
-        (run / METRICS).write_text("".join(lines[:rng.randrange(len(lines))]))
+        (run / METRICS).write_text("".join(lines[: rng.randrange(len(lines))]))
     return kind
 
 
@@ -149,6 +215,7 @@ def command(args: list[str]) -> str:
 def unchanged(original: Path, damaged: Path, read: tuple[str, ...]) -> bool:
     """Whether the damage left the files a command reads (``read``) meaning what they meant: the same config
     values, the same checkpoint and metrics bytes."""
+
     def meaning(run: Path, name: str):
         data = (run / name).read_bytes()
         try:
@@ -161,12 +228,14 @@ def unchanged(original: Path, damaged: Path, read: tuple[str, ...]) -> bool:
 
 def sweep_folders(rng: random.Random, count: int, folder: Path) -> dict[str, Counter]:
     finished = {}
-    for kind, extra in (("model-free", ["--budget", "24"]), ("model-based", ["--model-based", "--budget", "4",
-                                                                                "--generations", "2",
-                                                                                "--model-hidden", "8"])):
+    for kind, extra in (
+        ("model-free", ["--budget", "24"]),
+        ("model-based", ["--model-based", "--budget", "4", "--generations", "2", "--model-hidden", "8"]),
+    ):
         finished[kind] = folder / kind
-        result = CliRunner().invoke(main, ["train", "cartpole", *extra, "--eval-episodes", "3", "--quiet",
-                                           "--out", str(finished[kind])])
+        result = CliRunner().invoke(
+            main, ["train", "cartpole", *extra, "--eval-episodes", "3", "--quiet", "--out", str(finished[kind])]
+        )
         assert result.exit_code == 0, result.output
     results = {name: Counter() for name in ("eval", "resume", "render")}
     for number in range(count):
@@ -176,8 +245,11 @@ def sweep_folders(rng: random.Random, count: int, folder: Path) -> dict[str, Cou
             shutil.copytree(finished[kind], run)
             rng_copy = random.Random(number)  # the same damage for the three commands
             what = damage(rng_copy, run)
-            args = {"eval": ["eval", str(run), "--episodes", "3"], "resume": ["train", "--resume", str(run), "--quiet"],
-                    "render": ["render", str(run), "--out", str(folder / f"video{number}.gif"), "--max-steps", "5"]}
+            args = {
+                "eval": ["eval", str(run), "--episodes", "3"],
+                "resume": ["train", "--resume", str(run), "--quiet"],
+                "render": ["render", str(run), "--out", str(folder / f"video{number}.gif"), "--max-steps", "5"],
+            }
             got = command(args[name])
             read = (CONFIG, CHECKPOINT, METRICS) if name == "resume" else (CONFIG, CHECKPOINT)
             if got == "accepted" and not unchanged(finished[kind], run, read):
@@ -190,9 +262,11 @@ def sweep_folders(rng: random.Random, count: int, folder: Path) -> dict[str, Cou
 def table(name: str, results: Counter) -> None:
     tried = sum(results.values())
     defects = {key: value for key, value in results.items() if key.startswith(("traceback", "silent"))}
-    print(f"| {name} | {tried} | {results['accepted']} | {results['refused']} | "
-          f"{sum(v for k, v in defects.items() if k.startswith('traceback'))} | "
-          f"{sum(v for k, v in defects.items() if k.startswith('silent'))} |")
+    print(
+        f"| {name} | {tried} | {results['accepted']} | {results['refused']} | "
+        f"{sum(v for k, v in defects.items() if k.startswith('traceback'))} | "
+        f"{sum(v for k, v in defects.items() if k.startswith('silent'))} |"
+    )
     for key, value in sorted(defects.items(), key=lambda item: -item[1])[:5]:
         print(f"|   {value} × {key[:150]} | | | | | |")
 

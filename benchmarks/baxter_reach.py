@@ -1,10 +1,10 @@
 """Real training episodes until the centre policy reaches Baxter's target (thesis 5.2, reward 5.10).
 
 For each seed, drrl's training loop (``drrl.loop.run``, what ``drrl.train.train`` runs) spends a budget of real
-episodes on PGPE over a Baxter reach env. Every ``--probe-every`` generations the centre policy μ runs ``--eval-episodes`` fresh
-episodes (counted apart, never as training), and we record the fraction that end with the end-point(s) within
-0.05 m of the target(s) and not failed. Prints, per seed, the real episodes and training wall time when μ first
-reached ``--goal`` (95 % for a fixed target) and the final fraction; then medians over seeds.
+episodes on PGPE over a Baxter reach env. Every ``--probe-every`` generations the centre policy μ runs
+``--eval-episodes`` fresh episodes (counted apart, never as training), and we record the fraction that end with the
+end-point(s) within 0.05 m of the target(s) and not failed. Prints, per seed, the real episodes and training wall time
+when μ first reached ``--goal`` (95 % for a fixed target) and the final fraction; then medians over seeds.
 
     python benchmarks/baxter_reach.py --seeds 5
     python benchmarks/baxter_reach.py --env drrl/BaxterReachRightRandom-v0 --goal 0.8 --budget 4000
@@ -21,8 +21,8 @@ import numpy as np
 import torch
 
 from drrl.config import TrainConfig
-from drrl.envs.baxter.task import reach_fraction
 from drrl.envs.batch import ActionMap, make_batch_env
+from drrl.envs.baxter.task import reach_fraction
 from drrl.loop import Counters, Setup, Subscriber, run
 from drrl.policies import Policy
 from drrl.runs import RunFolder
@@ -75,23 +75,44 @@ class ReachProbe(Subscriber):
             return  # the final checkpoint repeats the last one
         probe_start = time.perf_counter()
         distance, failed = final_distances(self.policy, state["center"], self.env, seed=state["iteration"])
-        self.history.append({"generation": state["iteration"], "real_episodes": state["real_episodes"],
-                             "seconds": probe_start - self.start - self.probing_seconds,
-                             "reached": reach_fraction(torch.as_tensor(distance), torch.as_tensor(failed)),
-                             "failed": float(failed.mean()), "median_distance": float(np.median(distance))})
+        self.history.append(
+            {
+                "generation": state["iteration"],
+                "real_episodes": state["real_episodes"],
+                "seconds": probe_start - self.start - self.probing_seconds,
+                "reached": reach_fraction(torch.as_tensor(distance), torch.as_tensor(failed)),
+                "failed": float(failed.mean()),
+                "median_distance": float(np.median(distance)),
+            }
+        )
         self.probing_seconds += time.perf_counter() - probe_start
         if self.verbose:
             row = self.history[-1]
-            print(f"  seed {self.seed} generation {row['generation']}: {row['real_episodes']} episodes, "
-                  f"{row['seconds']:.0f} s, reached {row['reached']:.2f}, failed {row['failed']:.2f}, "
-                  f"median distance {row['median_distance']:.3f} m", flush=True)
+            print(
+                f"  seed {self.seed} generation {row['generation']}: {row['real_episodes']} episodes, "
+                f"{row['seconds']:.0f} s, reached {row['reached']:.2f}, failed {row['failed']:.2f}, "
+                f"median distance {row['median_distance']:.3f} m",
+                flush=True,
+            )
 
 
 def run_seed(args, seed: int) -> list[dict]:
-    config = TrainConfig(env=args.env, policy=args.policy, sampler="symmetric", optimizer=args.optimizer,
-                         fitness_shaping="centered_ranks", popsize=args.popsize, budget=args.budget,
-                         sigma_init=args.sigma_init, center_lr=args.center_lr, sigma_lr=args.sigma_lr,
-                         eval_episodes=1, eval_every=10**6, checkpoint_every=args.probe_every, seed=seed)
+    config = TrainConfig(
+        env=args.env,
+        policy=args.policy,
+        sampler="symmetric",
+        optimizer=args.optimizer,
+        fitness_shaping="centered_ranks",
+        popsize=args.popsize,
+        budget=args.budget,
+        sigma_init=args.sigma_init,
+        center_lr=args.center_lr,
+        sigma_lr=args.sigma_lr,
+        eval_episodes=1,
+        eval_every=10**6,
+        checkpoint_every=args.probe_every,
+        seed=seed,
+    )
     with tempfile.TemporaryDirectory() as folder:
         probe = ReachProbe(config, args.eval_episodes, args.verbose)
         try:  # drrl.train.train's loop and run folder, with the probe told of every checkpoint
@@ -128,9 +149,11 @@ def main() -> None:
     parser.add_argument("--verbose", action="store_true", help="print every measurement of μ")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print(f"{args.env}, {args.policy} policy, popsize {args.popsize}, {args.optimizer} lr {args.center_lr}, "
-          f"σ₀ {args.sigma_init}, budget {args.budget}, μ measured on {args.eval_episodes} episodes every "
-          f"{args.probe_every} generations")
+    print(
+        f"{args.env}, {args.policy} policy, popsize {args.popsize}, {args.optimizer} lr {args.center_lr}, "
+        f"σ₀ {args.sigma_init}, budget {args.budget}, μ measured on {args.eval_episodes} episodes every "
+        f"{args.probe_every} generations"
+    )
     print("| seed | episodes to goal | seconds to goal | final reached | final failed | final median distance (m) |")
     print("| --- | --- | --- | --- | --- | --- |")
     episodes, seconds = [], []
@@ -140,11 +163,15 @@ def main() -> None:
         episodes.append(hit["real_episodes"] if hit else None)
         seconds.append(hit["seconds"] if hit else None)
         reached = f"{hit['real_episodes']} | {hit['seconds']:.0f}" if hit else "not reached | -"
-        print(f"| {seed} | {reached} | {last['reached']:.2f} | {last['failed']:.2f} | {last['median_distance']:.3f} |",
-              flush=True)
+        print(
+            f"| {seed} | {reached} | {last['reached']:.2f} | {last['failed']:.2f} | {last['median_distance']:.3f} |",
+            flush=True,
+        )
     hits = sum(e is not None for e in episodes)
-    print(f"\nmedian real episodes to {args.goal:.0%}: {median_or_miss(episodes)}; median seconds: "
-          f"{median_or_miss(seconds)}; seeds reaching the goal: {hits}/{args.seeds}")
+    print(
+        f"\nmedian real episodes to {args.goal:.0%}: {median_or_miss(episodes)}; median seconds: "
+        f"{median_or_miss(seconds)}; seeds reaching the goal: {hits}/{args.seeds}"
+    )
 
 
 if __name__ == "__main__":

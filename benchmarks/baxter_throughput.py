@@ -62,18 +62,24 @@ def main() -> None:
         env_times.append(timed(with_policy))
         env.reset(seed=0)  # the same start states, at rest
         raw_times.append(timed(raw))
-    print(f"{args.env}: {args.num_envs} envs × {args.steps} control steps × {sims.substeps} physics steps, "
-          f"{sims.batch.nthread} MuJoCo threads, {args.repeats} interleaved repeats")
+    print(
+        f"{args.env}: {args.num_envs} envs × {args.steps} control steps × {sims.substeps} physics steps, "
+        f"{sims.batch.nthread} MuJoCo threads, {args.repeats} interleaved repeats"
+    )
     print("| | physics steps/s, median (best) | physics steps per CPU-second, median |")
     print("| --- | --- | --- |")
     for name, times in (("batched env + linear policy", env_times), ("raw mj_step, same batch", raw_times)):
         walls, cpus = [wall for wall, _ in times], [cpu for _, cpu in times]
-        print(f"| {name} | {physics_steps / statistics.median(walls):,.0f} ({physics_steps / min(walls):,.0f}) | "
-              f"{physics_steps / statistics.median(cpus):,.0f} |")
+        print(
+            f"| {name} | {physics_steps / statistics.median(walls):,.0f} ({physics_steps / min(walls):,.0f}) | "
+            f"{physics_steps / statistics.median(cpus):,.0f} |"
+        )
     env_walls, raw_walls = [wall for wall, _ in env_times], [wall for wall, _ in raw_times]
-    print(f"| env / raw | {statistics.median(raw_walls) / statistics.median(env_walls):.0%} "
-          f"({min(raw_walls) / min(env_walls):.0%}) | "
-          f"{statistics.median(c for _, c in raw_times) / statistics.median(c for _, c in env_times):.0%} |")
+    print(
+        f"| env / raw | {statistics.median(raw_walls) / statistics.median(env_walls):.0%} "
+        f"({min(raw_walls) / min(env_walls):.0%}) | "
+        f"{statistics.median(c for _, c in raw_times) / statistics.median(c for _, c in env_times):.0%} |"
+    )
 
 
 if __name__ == "__main__":

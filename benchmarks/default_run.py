@@ -24,8 +24,9 @@ def one_run(seed: int, folder: Path) -> tuple[float, float | None, int | None]:
     drrl = Path(sys.executable).with_name("drrl")
     out = folder / f"seed{seed}"
     start = time.perf_counter()
-    subprocess.run([drrl, "train", "cartpole", "--seed", str(seed), "--quiet", "--out", str(out)], check=True,
-                   capture_output=True)
+    subprocess.run(
+        [drrl, "train", "cartpole", "--seed", str(seed), "--quiet", "--out", str(out)], check=True, capture_output=True
+    )
     total = time.perf_counter() - start
     with (out / "metrics.csv").open() as handle:
         rows = list(csv.DictReader(handle))
@@ -46,11 +47,15 @@ def main() -> None:
     finally:
         shutil.rmtree(folder)
     for seed, (total, balanced_at, episodes) in enumerate(results):
-        print(f"seed {seed}: whole run {total:.1f} s; balanced after {balanced_at and round(balanced_at, 1)} s "
-              f"({episodes} real episodes)")
+        print(
+            f"seed {seed}: whole run {total:.1f} s; balanced after {balanced_at and round(balanced_at, 1)} s "
+            f"({episodes} real episodes)"
+        )
     reached = [r[1] for r in results if r[1] is not None]
-    print(f"median whole run {statistics.median(r[0] for r in results):.1f} s; median time to balanced "
-          f"{statistics.median(reached) if reached else float('nan'):.1f} s ({len(reached)}/{args.seeds} balanced)")
+    print(
+        f"median whole run {statistics.median(r[0] for r in results):.1f} s; median time to balanced "
+        f"{statistics.median(reached) if reached else float('nan'):.1f} s ({len(reached)}/{args.seeds} balanced)"
+    )
 
 
 if __name__ == "__main__":

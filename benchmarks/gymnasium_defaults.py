@@ -20,8 +20,14 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-TARGETS = {"Pendulum-v1": -200, "Acrobot-v1": -100, "MountainCarContinuous-v0": 90,
-           "InvertedDoublePendulum-v5": 9000, "Reacher-v5": -5, "Hopper-v5": 2500}
+TARGETS = {
+    "Pendulum-v1": -200,
+    "Acrobot-v1": -100,
+    "MountainCarContinuous-v0": 90,
+    "InvertedDoublePendulum-v5": 9000,
+    "Reacher-v5": -5,
+    "Hopper-v5": 2500,
+}
 
 
 def one_run(env: str, core: int, folder: Path) -> dict:
@@ -33,11 +39,17 @@ def one_run(env: str, core: int, folder: Path) -> dict:
     wall = time.perf_counter() - start
     evaluated = subprocess.run([*pin, drrl, "eval", out], check=True, capture_output=True, text=True).stdout
     lines = (out / "metrics.csv").read_text().splitlines()
-    row = dict(zip(lines[0].split(","), lines[-1].split(",")))
+    row = dict(zip(lines[0].split(","), lines[-1].split(","), strict=True))
     config = json.loads((out / "config.json").read_text())
     eval_return = float(re.search(r"return (-?[\d.]+)", evaluated).group(1))
-    return {"env": env, "engine": config["engine"], "episodes": int(row["real_episodes"]),
-            "steps": int(row["real_steps"]), "wall": wall, "eval": eval_return}
+    return {
+        "env": env,
+        "engine": config["engine"],
+        "episodes": int(row["real_episodes"]),
+        "steps": int(row["real_steps"]),
+        "wall": wall,
+        "eval": eval_return,
+    }
 
 
 def main() -> None:
@@ -64,8 +76,10 @@ def main() -> None:
     for r in results:
         target = TARGETS.get(r["env"])
         met = "—" if target is None else "yes" if r["eval"] >= target else "no"
-        print(f"| {r['env']} | {r['engine']} | {r['episodes']:,} | {r['steps']:,} | {r['wall']:.0f} s | "
-              f"{r['eval']:.1f} | {target} | {met} |")
+        print(
+            f"| {r['env']} | {r['engine']} | {r['episodes']:,} | {r['steps']:,} | {r['wall']:.0f} s | "
+            f"{r['eval']:.1f} | {target} | {met} |"
+        )
 
 
 if __name__ == "__main__":

@@ -48,10 +48,23 @@ class Drrl:
 
     def __init__(self, env: str, engine: str, popsize: int):
         self.name = f"drrl ({engine})"
-        config = TrainConfig(env=env, policy="linear", popsize=popsize, sampler="symmetric", optimizer="clipup",
-                             fitness_shaping="centered_ranks", sigma_init=SIGMA_INIT, center_lr=CENTER_LR,
-                             sigma_lr=SIGMA_LR, max_sigma_change=MAX_SIGMA_CHANGE, engine=engine,
-                             budget=10**9, eval_every=10**9, eval_episodes=1, observation_norm=False)  # as EvoTorch
+        config = TrainConfig(
+            env=env,
+            policy="linear",
+            popsize=popsize,
+            sampler="symmetric",
+            optimizer="clipup",
+            fitness_shaping="centered_ranks",
+            sigma_init=SIGMA_INIT,
+            center_lr=CENTER_LR,
+            sigma_lr=SIGMA_LR,
+            max_sigma_change=MAX_SIGMA_CHANGE,
+            engine=engine,
+            budget=10**9,
+            eval_every=10**9,
+            eval_episodes=1,
+            observation_norm=False,
+        )  # as EvoTorch
         self.setup = prepare(config)
         self.generation = 0
 
@@ -71,12 +84,21 @@ class EvoTorch:
     def __init__(self, env: str, kind: str, popsize: int):
         self.name = f"EvoTorch {kind}"
         problem_class = {"GymNE": GymNE, "VecGymNE": VecGymNE}[kind]
-        self.problem = problem_class(env, "Linear(obs_length, act_length)", observation_normalization=False,
-                                     num_episodes=1, num_actors=0)
-        self.searcher = PGPE(self.problem, popsize=popsize, center_learning_rate=CENTER_LR,
-                             stdev_learning_rate=SIGMA_LR, stdev_init=SIGMA_INIT, stdev_max_change=MAX_SIGMA_CHANGE,
-                             optimizer="clipup", ranking_method="centered", symmetric=True,
-                             center_init=torch.zeros(self.problem.solution_length))
+        self.problem = problem_class(
+            env, "Linear(obs_length, act_length)", observation_normalization=False, num_episodes=1, num_actors=0
+        )
+        self.searcher = PGPE(
+            self.problem,
+            popsize=popsize,
+            center_learning_rate=CENTER_LR,
+            stdev_learning_rate=SIGMA_LR,
+            stdev_init=SIGMA_INIT,
+            stdev_max_change=MAX_SIGMA_CHANGE,
+            optimizer="clipup",
+            ranking_method="centered",
+            symmetric=True,
+            center_init=torch.zeros(self.problem.solution_length),
+        )
         self.interactions = 0
 
     def step(self) -> int:
@@ -103,8 +125,12 @@ def measure(env: str, popsize: int, rounds: int, seconds: float) -> list[dict]:
     """All contenders run the same generations, so that their searches are at the same stage (episode lengths
     change as a search learns): N a round for all, aimed at 1.5 × ``seconds`` for the fastest contender and raised
     after a round whose fastest took less."""
-    contenders = [Drrl(env, "gymnasium", popsize), Drrl(env, "envpool", popsize),
-                  EvoTorch(env, "GymNE", popsize), EvoTorch(env, "VecGymNE", popsize)]
+    contenders = [
+        Drrl(env, "gymnasium", popsize),
+        Drrl(env, "envpool", popsize),
+        EvoTorch(env, "GymNE", popsize),
+        EvoTorch(env, "VecGymNE", popsize),
+    ]
     results = {contender.name: [] for contender in contenders}
     aim = 1.5 * seconds  # a margin: episodes shorten as a search learns, and a round with them
     try:
@@ -112,17 +138,24 @@ def measure(env: str, popsize: int, rounds: int, seconds: float) -> list[dict]:
             timed(contender, 1)  # warm-up: envs made, first resets, lazily built pieces
         count = max(math.ceil(aim / timed(contender, 1)[0]) for contender in contenders)
         for r in range(rounds):
-            for contender in (contenders if r % 2 == 0 else contenders[::-1]):
+            for contender in contenders if r % 2 == 0 else contenders[::-1]:
                 results[contender.name].append((count, *timed(contender, count)))
             fastest = min(results[contender.name][-1][1] for contender in contenders)
             count = max(count, math.ceil(count * aim / fastest))
     finally:
         for contender in contenders:
             contender.close()
-    return [dict(env=env, contender=name, generations="/".join(str(n) for n, _, _ in runs),
-                 seconds=statistics.median(s for _, s, _ in runs),
-                 steps_per_generation=statistics.median(steps / n for n, _, steps in runs),
-                 rate=statistics.median(steps / s for _, s, steps in runs)) for name, runs in results.items()]
+    return [
+        dict(
+            env=env,
+            contender=name,
+            generations="/".join(str(n) for n, _, _ in runs),
+            seconds=statistics.median(s for _, s, _ in runs),
+            steps_per_generation=statistics.median(steps / n for n, _, steps in runs),
+            rate=statistics.median(steps / s for _, s, steps in runs),
+        )
+        for name, runs in results.items()
+    ]
 
 
 def main() -> None:
@@ -136,18 +169,25 @@ def main() -> None:
     torch.manual_seed(0)  # EvoTorch's sampling
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     logging.getLogger("evotorch").setLevel(logging.WARNING)  # its INFO lines on every problem and optimizer made
-    rows = [row for env in args.envs.split(",") for row in measure(env.strip(), args.popsize, args.rounds,
-                                                                     args.seconds)]
-    print(f"popsize {args.popsize}, linear policy with bias, 1 episode per candidate, {args.rounds} rounds, "
-          f"torch threads {torch.get_num_threads()}\n")
-    print("| env | contender | generations per round (N) | median s per round | median steps per generation "
-          "| median env-steps/s | ÷ GymNE | ÷ VecGymNE |")
+    rows = [
+        row for env in args.envs.split(",") for row in measure(env.strip(), args.popsize, args.rounds, args.seconds)
+    ]
+    print(
+        f"popsize {args.popsize}, linear policy with bias, 1 episode per candidate, {args.rounds} rounds, "
+        f"torch threads {torch.get_num_threads()}\n"
+    )
+    print(
+        "| env | contender | generations per round (N) | median s per round | median steps per generation "
+        "| median env-steps/s | ÷ GymNE | ÷ VecGymNE |"
+    )
     print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     for row in rows:
         same_env = {other["contender"]: other["rate"] for other in rows if other["env"] == row["env"]}
-        print(f"| {row['env']} | {row['contender']} | {row['generations']} | {row['seconds']:.2f} "
-              f"| {row['steps_per_generation']:,.0f} | {row['rate']:,.0f} "
-              f"| {row['rate'] / same_env['EvoTorch GymNE']:.2f} | {row['rate'] / same_env['EvoTorch VecGymNE']:.2f} |")
+        print(
+            f"| {row['env']} | {row['contender']} | {row['generations']} | {row['seconds']:.2f} "
+            f"| {row['steps_per_generation']:,.0f} | {row['rate']:,.0f} "
+            f"| {row['rate'] / same_env['EvoTorch GymNE']:.2f} | {row['rate'] / same_env['EvoTorch VecGymNE']:.2f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -26,10 +26,39 @@ from drrl.runs import RunFolder
 
 DRRL = str(Path(sys.executable).with_name("drrl"))
 TIMINGS = ("wall_time", "fit_time", "search_time")  # seconds: the one thing a resumed run does not repeat
-MODEL_FREE = ["cartpole", "--budget", "400", "--popsize", "8", "--eval-episodes", "10", "--checkpoint-every", "5",
-              "--seed", "7", "--quiet"]
-MODEL_BASED = ["cartpole", "--model-based", "--budget", "12", "--popsize", "10", "--episodes-per-candidate", "4",
-               "--generations", "20", "--model-hidden", "32", "--eval-episodes", "10", "--seed", "7", "--quiet"]
+MODEL_FREE = [
+    "cartpole",
+    "--budget",
+    "400",
+    "--popsize",
+    "8",
+    "--eval-episodes",
+    "10",
+    "--checkpoint-every",
+    "5",
+    "--seed",
+    "7",
+    "--quiet",
+]
+MODEL_BASED = [
+    "cartpole",
+    "--model-based",
+    "--budget",
+    "12",
+    "--popsize",
+    "10",
+    "--episodes-per-candidate",
+    "4",
+    "--generations",
+    "20",
+    "--model-hidden",
+    "32",
+    "--eval-episodes",
+    "10",
+    "--seed",
+    "7",
+    "--quiet",
+]
 
 
 def metrics(out: Path) -> list[dict[str, str]]:
@@ -59,8 +88,9 @@ def identical(a: Path, b: Path) -> bool:
 def trial(settings: list[str], out: Path, kill_after: float) -> tuple[int, int]:
     """Kill a run ``kill_after`` seconds into its training, resume it; (rows of metrics written before the kill,
     the checkpoint's step)."""
-    process = subprocess.Popen([DRRL, "train", *settings, "--out", str(out)], stdout=subprocess.DEVNULL,
-                               stderr=subprocess.DEVNULL)
+    process = subprocess.Popen(
+        [DRRL, "train", *settings, "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     while not (out / "checkpoint.safetensors").exists():  # written once the run has been set up
         time.sleep(0.002)
     time.sleep(kill_after)
@@ -76,8 +106,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--trials", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0, help="seed of the kill moments")
-    parser.add_argument("--model-based", action="store_true", help="model-based runs (6 iterations) instead of "
-                                                                   "model-free ones (50 generations)")
+    parser.add_argument(
+        "--model-based",
+        action="store_true",
+        help="model-based runs (6 iterations) instead of model-free ones (50 generations)",
+    )
     args = parser.parse_args()
     settings = MODEL_BASED if args.model_based else MODEL_FREE
     folder = Path(tempfile.mkdtemp(prefix="drrl-kill-resume-"))
@@ -93,11 +126,15 @@ def main() -> None:
         written, saved = trial(settings, folder / f"trial{number}", kill_after)
         ok = identical(folder / f"trial{number}", reference)
         same += ok
-        print(f"trial {number:2}: SIGKILL {kill_after:5.2f} s into training, after {written:2} rows of metrics; "
-              f"checkpoint at step {saved:2}, {written - saved} row(s) dropped on resume; "
-              f"{'identical' if ok else 'DIFFERENT'}")
-    print(f"{same}/{args.trials} resumed runs bit-identical to the uninterrupted run (timings aside); "
-          f"run folders in {folder}")
+        print(
+            f"trial {number:2}: SIGKILL {kill_after:5.2f} s into training, after {written:2} rows of metrics; "
+            f"checkpoint at step {saved:2}, {written - saved} row(s) dropped on resume; "
+            f"{'identical' if ok else 'DIFFERENT'}"
+        )
+    print(
+        f"{same}/{args.trials} resumed runs bit-identical to the uninterrupted run (timings aside); "
+        f"run folders in {folder}"
+    )
 
 
 if __name__ == "__main__":

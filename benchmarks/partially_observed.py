@@ -21,22 +21,36 @@ import statistics
 import time
 
 import torch
+from sample_efficiency import first_reached, median_or_miss
 
 from drrl.config import TrainConfig
 from drrl.envs.batch import make_batch_env
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
 from drrl.train import train
-from sample_efficiency import first_reached, median_or_miss
 
 # PGPE settings for recurrent policies, tuned on 4 seeds per task (see BENCHMARKS.md). Both use a σ below the
 # default 1.0: every recurrent weight is perturbed, and a w × w recurrent block with N(0, 1) entries has spectral
 # radius ≈ √w, deep in saturation. The partially observed task prefers centred ranks, a smaller step and more
 # candidates per generation; the full task prefers raw returns (a fall costs hundreds) and larger steps.
-PO_SETTINGS = dict(popsize=16, sampler="symmetric", optimizer="clipup", center_lr=0.1, sigma_init=0.2,
-                   sigma_lr=0.05, fitness_shaping="centered_ranks")
-FULL_SETTINGS = dict(popsize=8, sampler="symmetric", optimizer="clipup", center_lr=0.2, sigma_init=0.3,
-                     sigma_lr=0.01, fitness_shaping="none")
+PO_SETTINGS = dict(
+    popsize=16,
+    sampler="symmetric",
+    optimizer="clipup",
+    center_lr=0.1,
+    sigma_init=0.2,
+    sigma_lr=0.05,
+    fitness_shaping="centered_ranks",
+)
+FULL_SETTINGS = dict(
+    popsize=8,
+    sampler="symmetric",
+    optimizer="clipup",
+    center_lr=0.2,
+    sigma_init=0.3,
+    sigma_lr=0.01,
+    fitness_shaping="none",
+)
 DEFAULTS: dict = {}  # TrainConfig's defaults
 
 CRITERIA = ("balanced", "near_optimal")
@@ -46,8 +60,9 @@ def episodes_to_criteria(env: str, policy: str, settings: dict, seeds: int, budg
     """Per criterion, the real training episodes each seed needed to first meet it (None if never)."""
     reached: dict[str, list] = {criterion: [] for criterion in CRITERIA}
     for seed in range(seeds):
-        rows = train(TrainConfig(env=env, policy=policy, seed=seed, budget=budget, eval_share=1.0, **settings),
-                     progress=False).rows
+        rows = train(
+            TrainConfig(env=env, policy=policy, seed=seed, budget=budget, eval_share=1.0, **settings), progress=False
+        ).rows
         for criterion in CRITERIA:
             reached[criterion].append(first_reached(rows, criterion))
     return reached
@@ -55,17 +70,22 @@ def episodes_to_criteria(env: str, policy: str, settings: dict, seeds: int, budg
 
 def sample_efficiency_table(env: str, runs: list[tuple[str, str, dict]], seeds: int, budget: int) -> None:
     print(f"\n{env}, budget {budget} real episodes, {seeds} seeds\n")
-    print("| policy | parameters | settings | median episodes to balanced | seeds balanced "
-          "| median to near-optimal | seeds near-optimal |")
+    print(
+        "| policy | parameters | settings | median episodes to balanced | seeds balanced "
+        "| median to near-optimal | seeds near-optimal |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- |")
     observation_size = make_batch_env(env, 1).single_observation_space.shape[0]
     for policy, label, settings in runs:
         reached = episodes_to_criteria(env, policy, settings, seeds, budget)
         hits = {c: sum(v is not None for v in reached[c]) for c in CRITERIA}
         parameters = make_policy(policy, observation_size, 1).num_params
-        print(f"| {policy} | {parameters} | {label} | {median_or_miss(reached['balanced'])} "
-              f"| {hits['balanced']}/{seeds} | {median_or_miss(reached['near_optimal'])} "
-              f"| {hits['near_optimal']}/{seeds} |", flush=True)
+        print(
+            f"| {policy} | {parameters} | {label} | {median_or_miss(reached['balanced'])} "
+            f"| {hits['balanced']}/{seeds} | {median_or_miss(reached['near_optimal'])} "
+            f"| {hits['near_optimal']}/{seeds} |",
+            flush=True,
+        )
 
 
 def balancing_lstm(policy: Policy) -> torch.Tensor:
@@ -117,8 +137,11 @@ def main() -> None:
     print(f"PO settings: {PO_SETTINGS}\nfull settings: {FULL_SETTINGS}")
     if "po" in sections:
         runs = [(spec, "PO", PO_SETTINGS) for spec in recurrent]
-        runs += [(spec, label, settings) for spec in feedforward
-                 for label, settings in (("defaults", DEFAULTS), ("PO", PO_SETTINGS))]
+        runs += [
+            (spec, label, settings)
+            for spec in feedforward
+            for label, settings in (("defaults", DEFAULTS), ("PO", PO_SETTINGS))
+        ]
         sample_efficiency_table("cartpole-po", runs, args.seeds, args.budget)
     if "full" in sections:
         runs = [(TrainConfig().policy, "defaults", DEFAULTS)] + [(spec, "full", FULL_SETTINGS) for spec in recurrent]

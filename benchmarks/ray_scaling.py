@@ -35,6 +35,12 @@ from drrl.train import build_policy, build_search
 TICKS = os.sysconf("SC_CLK_TCK")
 
 
+def load_average() -> list[str]:
+    """The 1, 5 and 15 minute load averages, as /proc/loadavg gives them."""
+    with open("/proc/loadavg") as file:
+        return file.read().split()[:3]
+
+
 def cpu_seconds(pid: int) -> float:
     """User plus system CPU time of process ``pid`` so far."""
     with open(f"/proc/{pid}/stat") as handle:
@@ -64,8 +70,14 @@ def main() -> None:
     torch.set_num_threads(1)
     if args.centre:
         args.policy = RunFolder(args.centre).read_config().policy
-    config = TrainConfig(env=args.env, policy=args.policy, popsize=args.popsize, episodes_per_candidate=args.episodes,
-                         budget=args.popsize * args.episodes, max_steps=args.max_steps)
+    config = TrainConfig(
+        env=args.env,
+        policy=args.policy,
+        popsize=args.popsize,
+        episodes_per_candidate=args.episodes,
+        budget=args.popsize * args.episodes,
+        max_steps=args.max_steps,
+    )
     probe = make_batch_env(args.env, 1)
     policy = build_policy(config, probe)
     env_id = probe.spec.id if probe.spec else args.env
@@ -76,22 +88,33 @@ def main() -> None:
         noise = torch.randn(args.popsize, centre.numel(), generator=torch.Generator().manual_seed(0))
         params = centre + args.sigma * noise
     workload = Workload(policy, env_id, args.popsize, args.episodes, args.max_steps)
-    ray.init(num_cpus=3, include_dashboard=False, log_to_driver=False,
-             _system_config={"worker_niceness": args.worker_niceness})
-    backends = {"local": make_backend("local", workload),
-                "ray, 1 worker": make_backend("ray", workload, workers=1),
-                "ray, 2 workers": make_backend("ray", workload, workers=2)}
-    pids = {"local": [], "ray, 1 worker": backends["ray, 1 worker"].pids(),
-            "ray, 2 workers": backends["ray, 2 workers"].pids()}
+    ray.init(
+        num_cpus=3,
+        include_dashboard=False,
+        log_to_driver=False,
+        _system_config={"worker_niceness": args.worker_niceness},
+    )
+    backends = {
+        "local": make_backend("local", workload),
+        "ray, 1 worker": make_backend("ray", workload, workers=1),
+        "ray, 2 workers": make_backend("ray", workload, workers=2),
+    }
+    pids = {
+        "local": [],
+        "ray, 1 worker": backends["ray, 1 worker"].pids(),
+        "ray, 2 workers": backends["ray, 2 workers"].pids(),
+    }
     names = list(backends)
     wall = {name: [] for name in names}
     cpu = {name: [] for name in names}
     steps = None
-    print(f"{args.env}, {args.policy}, P = {args.popsize} × {args.episodes} episode(s), Ray workers at niceness "
-          f"{args.worker_niceness}; load average before: {open('/proc/loadavg').read().split()[:3]}")
+    print(
+        f"{args.env}, {args.policy}, P = {args.popsize} × {args.episodes} episode(s), Ray workers at niceness "
+        f"{args.worker_niceness}; load average before: {load_average()}"
+    )
     for repeat in range(args.repeats + 1):  # the same generation each time; the first round warms up, not counted
         reference = None
-        for name in names[repeat % 3:] + names[:repeat % 3]:
+        for name in names[repeat % 3 :] + names[: repeat % 3]:
             result, seconds, cpu_used = timed(backends[name], pids[name], params, seed=0)
             reference = reference or result
             assert torch.equal(result.episode_returns, reference.episode_returns), f"{name} differs"
@@ -103,10 +126,12 @@ def main() -> None:
         backend.close()
     ray.shutdown()
     median = {name: statistics.median(wall[name]) for name in names}
-    print(f"load average after: {open('/proc/loadavg').read().split()[:3]}; env-steps per generation: {steps}")
+    print(f"load average after: {load_average()}; env-steps per generation: {steps}")
     for name in names:
-        print(f"{name:15} {median[name]:7.3f} s/generation (range {min(wall[name]):.3f}–{max(wall[name]):.3f}), "
-              f"{steps / median[name]:10,.0f} env-steps/s, CPU {statistics.median(cpu[name]):.3f} s")
+        print(
+            f"{name:15} {median[name]:7.3f} s/generation (range {min(wall[name]):.3f}–{max(wall[name]):.3f}), "
+            f"{steps / median[name]:10,.0f} env-steps/s, CPU {statistics.median(cpu[name]):.3f} s"
+        )
     print(f"2 workers / 1 worker throughput: {median['ray, 1 worker'] / median['ray, 2 workers']:.2f}×")
     print(f"Ray overhead, 1 worker against local: {median['ray, 1 worker'] / median['local'] - 1:+.1%}")
     print("all evaluations bit-identical to the local backend's")

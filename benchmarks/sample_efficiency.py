@@ -2,8 +2,8 @@
 
 For each method and seed, `drrl train`'s defaults (bias-free linear policy) spend a budget of real episodes; the
 centre policy is measured on 50 fresh episodes after every generation (`eval_share` 1; counted apart, never as
-training). Prints a Markdown table of medians over seeds. A method is a PGPE sampler or another search (cmaes, sep-cmaes),
-which keeps the same popsize, σ₀ and budget.
+training). Prints a Markdown table of medians over seeds. A method is a PGPE sampler or another search (cmaes,
+sep-cmaes), which keeps the same popsize, σ₀ and budget.
 
     python benchmarks/sample_efficiency.py --seeds 10 --workers 2
     python benchmarks/sample_efficiency.py --seeds 10 --workers 2 --samplers symmetric,cmaes,sep-cmaes
@@ -51,17 +51,22 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
     print(f"budget {args.budget} real episodes, seeds 0..{args.seeds - 1}; defaults: {TrainConfig().model_dump()}\n")
-    print("| method | median episodes to balanced | median episodes to near-optimal | seeds balanced | "
-          "seeds near-optimal | per seed (balanced / near-optimal) |")
+    print(
+        "| method | median episodes to balanced | median episodes to near-optimal | seeds balanced | "
+        "seeds near-optimal | per seed (balanced / near-optimal) |"
+    )
     print("| --- | --- | --- | --- | --- | --- |")
     with Pool(args.workers) as pool:
         for sampler in args.samplers.split(","):
             jobs = [(sampler, seed, args.budget) for seed in range(args.seeds)]
-            balanced, near_optimal = zip(*pool.map(episodes_to_criteria, jobs))
-            per_seed = " ".join(f"{b}/{n}" for b, n in zip(balanced, near_optimal))
-            print(f"| {sampler} | {median_or_miss(balanced)} | {median_or_miss(near_optimal)} "
-                  f"| {sum(b is not None for b in balanced)}/{args.seeds} "
-                  f"| {sum(n is not None for n in near_optimal)}/{args.seeds} | {per_seed} |", flush=True)
+            balanced, near_optimal = zip(*pool.map(episodes_to_criteria, jobs), strict=True)
+            per_seed = " ".join(f"{b}/{n}" for b, n in zip(balanced, near_optimal, strict=True))
+            print(
+                f"| {sampler} | {median_or_miss(balanced)} | {median_or_miss(near_optimal)} "
+                f"| {sum(b is not None for b in balanced)}/{args.seeds} "
+                f"| {sum(n is not None for n in near_optimal)}/{args.seeds} | {per_seed} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -64,7 +64,9 @@ def main() -> None:
     policy = linear(4, 1)
     # Candidates near a balancing controller, so that episodes last the full 200 steps as in late training.
     balancing = torch.tensor([0.05, 0.1, 1.5, 0.2, 0.0])
-    candidates = balancing + 0.02 * torch.randn(args.population, policy.num_params, generator=torch.Generator().manual_seed(0))
+    candidates = balancing + 0.02 * torch.randn(
+        args.population, policy.num_params, generator=torch.Generator().manual_seed(0)
+    )
     env = make_batch_env("cartpole", args.population)
     single = gymnasium.make("drrl/CartPole-v0")
     fast = [batched(policy, candidates, env) for _ in range(args.repeats)]

@@ -13,8 +13,8 @@ import torch
 from gymnasium.utils.env_checker import check_env
 
 from drrl.config import TrainConfig
-from drrl.envs.baxter.model import ARM, SIDES, baxter_xml, import_mujoco, load_model, neutral_pose
 from drrl.envs.baxter.env import BaxterReachEnv, BaxterReachVectorEnv
+from drrl.envs.baxter.model import ARM, SIDES, baxter_xml, import_mujoco, load_model, neutral_pose
 from drrl.envs.baxter.simulation import BaxterBatch
 from drrl.envs.baxter.task import WORKSPACE, ReachTask, reach_fraction, reach_verdict, side_box
 
@@ -27,9 +27,15 @@ MAX_VELOCITY = np.array([joint.max_velocity for joint in ARM])
 # ---------------------------------------------------------------------------------------------------- kinematics
 
 # Standard Denavit–Hartenberg parameters of one arm, (a, d, α, θ offset), from ../shared/reference/baxter/README.md
-DH = [(0.069, 0.27035, -np.pi / 2, 0.0), (0.0, 0.0, np.pi / 2, np.pi / 2), (0.069, 0.36442, -np.pi / 2, 0.0),
-      (0.0, 0.0, np.pi / 2, 0.0), (0.010, 0.37429, -np.pi / 2, 0.0), (0.0, 0.0, np.pi / 2, 0.0),
-      (0.0, 0.229525, 0.0, 0.0)]
+DH = [
+    (0.069, 0.27035, -np.pi / 2, 0.0),
+    (0.0, 0.0, np.pi / 2, np.pi / 2),
+    (0.069, 0.36442, -np.pi / 2, 0.0),
+    (0.0, 0.0, np.pi / 2, 0.0),
+    (0.010, 0.37429, -np.pi / 2, 0.0),
+    (0.0, 0.0, np.pi / 2, 0.0),
+    (0.0, 0.229525, 0.0, 0.0),
+]
 
 
 def rotation_z(angle: float) -> np.ndarray:
@@ -53,7 +59,7 @@ def dh_end_point(q: np.ndarray, side: str) -> np.ndarray:
     sign = -1.0 if side == "right" else 1.0
     pose = translation(0.024645, sign * 0.219645, 0.118588) @ rotation_z(sign * np.pi / 4)
     pose = pose @ translation(0.055695, 0.0, 0.011038)
-    for angle, (a, d, alpha, offset) in zip(q, DH):
+    for angle, (a, d, alpha, offset) in zip(q, DH, strict=True):
         pose = pose @ rotation_z(angle + offset) @ translation(a, 0.0, d) @ rotation_x(alpha)
     return (pose @ np.array([0.0, 0.0, 0.025, 1.0]))[:3]
 
@@ -68,7 +74,7 @@ def test_end_points_match_the_denavit_hartenberg_table_within_a_millimetre():
         mujoco.mj_kinematics(model, data)
         for k, side in enumerate(SIDES):
             simulated = data.site(f"{side}_end_point").xpos
-            np.testing.assert_allclose(simulated, dh_end_point(q[7 * k: 7 * k + 7], side), atol=1e-3, rtol=0)
+            np.testing.assert_allclose(simulated, dh_end_point(q[7 * k : 7 * k + 7], side), atol=1e-3, rtol=0)
 
 
 def test_model_has_the_urdf_limits_masses_and_actuators():
@@ -212,7 +218,7 @@ def test_touching_the_table_fails_the_episode():
     env.sim.restart(np.arange(1), over_the_table[None], env.sim.targets.copy())
     down = np.zeros((1, 7))
     down[0, 3] = 1.5  # bend the elbow: the forearm swings down onto the table
-    for t in range(1, 100):
+    for t in range(1, 100):  # noqa: B007 (t is read after the loop)
         _, reward, terminated, truncated, _ = env.step(down)
         if terminated[0]:
             break
@@ -226,7 +232,7 @@ def test_running_into_a_joint_limit_fails_the_episode():
     env.reset(seed=0)
     toward_limit = np.zeros((1, 7))
     toward_limit[0, 6] = 4.0  # the wrist roll w2 turns freely until its stop at 3.059 rad
-    for t in range(1, 200):
+    for t in range(1, 200):  # noqa: B007 (t is read after the loop)
         _, reward, terminated, _, _ = env.step(toward_limit)
         if terminated[0]:
             break
@@ -390,16 +396,19 @@ def test_drrl_train_and_render_a_baxter_run_end_to_end(tmp_path):
 
     (tmp_path / "tiny.toml").write_text("popsize = 2\nbudget = 2\nmax_steps = 10\neval_episodes = 1\n")
     run = tmp_path / "run"
-    trained = CliRunner().invoke(main, ["train", "baxter-reach-right", "--config", str(tmp_path / "tiny.toml"),
-                                        "--out", str(run), "--quiet"])
+    trained = CliRunner().invoke(
+        main, ["train", "baxter-reach-right", "--config", str(tmp_path / "tiny.toml"), "--out", str(run), "--quiet"]
+    )
     assert trained.exit_code == 0, trained.output
     header = (run / "metrics.csv").read_text().splitlines()[0].split(",")
     assert {"held_95", "held_80", "no_failure"} <= set(header)
     judged = CliRunner().invoke(main, ["eval", str(run), "--episodes", "2"])
-    assert judged.exit_code == 0 and "no-failure:   yes" in judged.output and "2/2 episodes without a failure" in \
-        judged.output, judged.output
-    rendered = CliRunner().invoke(main, ["render", str(run), "--out", str(tmp_path / "reach.gif"),
-                                         "--max-steps", "8"])
+    assert (
+        judged.exit_code == 0
+        and "no-failure:   yes" in judged.output
+        and "2/2 episodes without a failure" in judged.output
+    ), judged.output
+    rendered = CliRunner().invoke(main, ["render", str(run), "--out", str(tmp_path / "reach.gif"), "--max-steps", "8"])
     if rendered.exit_code != 0 and "headless rendering failed" in rendered.output:
         pytest.skip(rendered.output)
     assert rendered.exit_code == 0, rendered.output
@@ -414,8 +423,11 @@ def test_headless_gl_prefers_egl_then_osmesa_and_else_leaves_rendering_off(monke
 
     from drrl.envs.baxter.model import headless_gl
 
+    def finder(found):
+        return lambda name: f"lib{name}.so" if name in found else None
+
     for found, backend in ((("EGL", "OSMesa"), "egl"), (("OSMesa",), "osmesa"), ((), "disable")):
-        monkeypatch.setattr(ctypes.util, "find_library", lambda name: f"lib{name}.so" if name in found else None)
+        monkeypatch.setattr(ctypes.util, "find_library", finder(found))
         assert headless_gl() == backend
 
 
@@ -428,8 +440,9 @@ def test_short_training_runs_and_counts_every_step():
     from drrl.loop import run
     from drrl.train import prepare
 
-    config = TrainConfig(env="drrl/BaxterReachRight-v0", popsize=4, budget=8, sigma_init=0.001, max_steps=25,
-                         eval_episodes=2)
+    config = TrainConfig(
+        env="drrl/BaxterReachRight-v0", popsize=4, budget=8, sigma_init=0.001, max_steps=25, eval_episodes=2
+    )
     counters = run(prepare(config))
     assert counters.iteration == 2 and counters.real_episodes == 8
     assert counters.real_steps == 8 * 25

@@ -23,7 +23,7 @@ from drrl.envs.cartpole import (
 
 C = CartPoleConstants()
 PHYSICS = CartPolePhysics(C)
-M, m, l, g = C.cart_mass, C.pole_mass, C.half_length, C.gravity
+M, m, l, g = C.cart_mass, C.pole_mass, C.half_length, C.gravity  # noqa: E741 (the thesis's l: half the pole)
 
 
 def random_states(n: int, seed: int = 0) -> np.ndarray:
@@ -46,7 +46,7 @@ def test_accelerations_solve_the_uniform_rod_lagrange_equations():
     states = random_states(64)
     forces = np.random.default_rng(1).uniform(-50, 50, 64)
     cart, pole = PHYSICS.accelerations(states[:, 2], states[:, 3], forces)
-    for (_, _, theta, theta_dot), force, s_ddot, theta_ddot in zip(states, forces, cart, pole):
+    for (_, _, theta, theta_dot), force, s_ddot, theta_ddot in zip(states, forces, cart, pole, strict=True):
         mass_matrix = [[M + m, m * l * np.cos(theta)], [m * l * np.cos(theta), 4 / 3 * m * l**2]]
         generalised_forces = [force + m * l * theta_dot**2 * np.sin(theta), m * g * l * np.sin(theta)]
         np.testing.assert_allclose([s_ddot, theta_ddot], np.linalg.solve(mass_matrix, generalised_forces), rtol=1e-12)
@@ -70,7 +70,7 @@ def test_step_is_classic_rk4_over_one_control_period():
 
 def mechanical_energy(states: np.ndarray) -> np.ndarray:
     """Cart ½Mṡ² + rod ½m|v_c|² + ½I θ̇² + mgl cos θ, with the rod's centre at (s + l sin θ, l cos θ), I = ml²/3."""
-    s, s_dot, theta, theta_dot = states.T
+    _s, s_dot, theta, theta_dot = states.T
     return (
         0.5 * (M + m) * s_dot**2
         + m * l * np.cos(theta) * s_dot * theta_dot
@@ -80,7 +80,7 @@ def mechanical_energy(states: np.ndarray) -> np.ndarray:
 
 
 def horizontal_momentum(states: np.ndarray) -> np.ndarray:
-    s, s_dot, theta, theta_dot = states.T
+    _s, s_dot, theta, theta_dot = states.T
     return (M + m) * s_dot + m * l * np.cos(theta) * theta_dot
 
 
@@ -220,7 +220,7 @@ def test_make_vec_returns_the_native_vector_env():
     assert env.num_envs == 8
     assert env.observation_space.shape == (8, 4) and env.action_space.shape == (8, 1)
     obs, _ = env.reset(seed=0)
-    obs, reward, terminated, truncated, info = env.step(np.zeros((8, 1), dtype=np.float32))
+    obs, reward, terminated, truncated, _info = env.step(np.zeros((8, 1), dtype=np.float32))
     assert obs.dtype == np.float32 and obs in env.observation_space
     assert reward.dtype == np.float64 and terminated.dtype == truncated.dtype == bool
 

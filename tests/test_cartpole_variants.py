@@ -25,8 +25,10 @@ from drrl.envs.cartpole import (
 )
 from drrl.envs.registry import lookup
 
-VARIANTS = [("drrl/CartPolePO-v0", "cartpole-po", PartiallyObservedTask), ("drrl/CartPoleSwingUp-v0",
-                                                                            "cartpole-swingup", SwingUpTask)]
+VARIANTS = [
+    ("drrl/CartPolePO-v0", "cartpole-po", PartiallyObservedTask),
+    ("drrl/CartPoleSwingUp-v0", "cartpole-swingup", SwingUpTask),
+]
 
 
 # ---------------------------------------------------------------------------------------------------- Gymnasium
@@ -47,7 +49,7 @@ def test_make_vec_and_the_alias_give_the_native_vector_env(env_id, alias, task):
         assert type(env) is CartPoleVectorEnv and type(env.task) is task
         assert env.observation_space.shape == (6, task.observation_size) and env.action_space.shape == (6, 1)
         obs, _ = env.reset(seed=0)
-        obs, reward, terminated, truncated, _ = env.step(np.zeros((6, 1), dtype=np.float32))
+        obs, reward, _terminated, _truncated, _ = env.step(np.zeros((6, 1), dtype=np.float32))
         assert obs.dtype == np.float32 and obs in env.observation_space and reward.shape == (6,)
 
 
@@ -70,7 +72,7 @@ def test_partially_observed_sees_position_and_angle_of_the_same_trajectory():
         np.testing.assert_array_equal(obs_partial, obs_full[:, [0, 2]])
         obs_full, *full_rest, _ = full.step(action)
         obs_partial, *partial_rest, _ = partial.step(action)
-        for a, b in zip(full_rest, partial_rest):  # reward, terminated, truncated
+        for a, b in zip(full_rest, partial_rest, strict=True):  # reward, terminated, truncated
             np.testing.assert_array_equal(a, b)
     assert partial.task.horizon == 200
 
@@ -141,14 +143,15 @@ def test_swing_up_truncates_at_250_and_hanging_still_earns_nothing():
 @functools.cache
 def upright_lqr_gain() -> np.ndarray:
     """The reference LQR of the balance task (Q = diag(1000, 1, 1000, 1), R = 0.1; see test_cartpole.py)."""
-    return discrete_lqr_gain(*rk4_discretisation(*upright_linearisation(), C.dt), np.diag([1000.0, 1, 1000, 1]),
-                             np.array([[0.1]]))
+    return discrete_lqr_gain(
+        *rk4_discretisation(*upright_linearisation(), C.dt), np.diag([1000.0, 1, 1000, 1]), np.array([[0.1]])
+    )
 
 
 def energy_and_lqr(state: np.ndarray, catch: float = 0.5) -> np.ndarray:
     """A hand-made swing-up: pump the pole's energy towards the upright's (Åström & Furuta 2000) with the cart near
     the centre, and hand over to LQR at the upright once |θ| < ``catch``; catch = 0 never hands over."""
-    m, l, g, total = C.pole_mass, C.half_length, C.gravity, C.cart_mass + C.pole_mass
+    m, l, g, total = C.pole_mass, C.half_length, C.gravity, C.cart_mass + C.pole_mass  # noqa: E741 (the thesis's l)
     s, s_dot, theta, theta_dot = state.T
     energy = 0.5 * (4 / 3) * m * l**2 * theta_dot**2 + m * g * l * (np.cos(theta) - 1)  # 0 at rest upright
     acceleration = np.clip(20 * energy * theta_dot * np.cos(theta), -10, 10) - s - 3 * s_dot

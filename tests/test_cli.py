@@ -1,4 +1,5 @@
 import csv
+import itertools
 import subprocess
 import sys
 from pathlib import Path
@@ -32,13 +33,17 @@ def metrics(out: Path) -> list[dict[str, str]]:
 def test_train_writes_a_readable_run_folder_and_counts_real_episodes(tmp_path):
     result, out = train(tmp_path, "cartpole", *SMALL)
     assert result.exit_code == 0, result.output
-    assert {p.name for p in out.iterdir()} == {"config.json", "metrics.csv", "checkpoint.safetensors",
-                                                "learning_curve.png"}
+    assert {p.name for p in out.iterdir()} == {
+        "config.json",
+        "metrics.csv",
+        "checkpoint.safetensors",
+        "learning_curve.png",
+    }
     rows = metrics(out)
     assert [int(r["real_episodes"]) for r in rows] == [10, 20, 30, 40]
     assert [int(r["eval_episodes"]) for r in rows] == [5, 10, 15, 20]  # measuring is counted apart
     steps = [int(r["real_steps"]) for r in rows]
-    assert all(10 <= b - a <= 10 * 200 for a, b in zip([0, *steps], steps))
+    assert all(10 <= b - a <= 10 * 200 for a, b in itertools.pairwise([0, *steps]))
     assert "done: 4 generations, 40 real episodes" in result.output
 
 
@@ -59,15 +64,27 @@ def test_checkpoint_restores_the_search_exactly(tmp_path):
     assert torch.equal(search.center, checkpoint["center"])
     assert checkpoint["real_episodes"] == 40 and checkpoint["iteration"] == 4
     # the best centre met the most verdict criteria (balanced, near-optimal) and, among those, returned most
-    best = max(metrics(out), key=lambda row: (int(row["balanced"]) + int(row["near_optimal"]),
-                                              float(row["center_return"])))
+    best = max(
+        metrics(out), key=lambda row: (int(row["balanced"]) + int(row["near_optimal"]), float(row["center_return"]))
+    )
     assert checkpoint["best_iteration"] == int(best["generation"])
     assert checkpoint["best_center_return"] == float(best["center_return"])
 
 
 def test_measuring_every_few_generations_keeps_the_columns_and_prefers_a_balanced_centre(tmp_path):
-    result, out = train(tmp_path, "cartpole", "--budget", "160", "--popsize", "8", "--eval-episodes", "5",
-                        "--eval-every", "3", "--quiet")
+    result, out = train(
+        tmp_path,
+        "cartpole",
+        "--budget",
+        "160",
+        "--popsize",
+        "8",
+        "--eval-episodes",
+        "5",
+        "--eval-every",
+        "3",
+        "--quiet",
+    )
     assert result.exit_code == 0, result.output
     rows = metrics(out)
     assert (out / "learning_curve.png").is_file() and len(rows) == 20
@@ -92,12 +109,26 @@ def test_eval_reports_the_cartpole_verdicts(tmp_path):
 
 
 def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
-    result, out = train(tmp_path, "--env", "Pendulum-v1", "--policy", "mlp:4", "--budget", "8", "--popsize", "4",
-                        "--eval-episodes", "2", "--quiet")
+    result, out = train(
+        tmp_path,
+        "--env",
+        "Pendulum-v1",
+        "--policy",
+        "mlp:4",
+        "--budget",
+        "8",
+        "--popsize",
+        "4",
+        "--eval-episodes",
+        "2",
+        "--quiet",
+    )
     assert result.exit_code == 0, result.output
     assert int(metrics(out)[-1]["real_steps"]) == 8 * 200
-    assert ("the centre met none of Pendulum-v1's criteria (solved); settings that suit it: --search cmaes --policy "
-            "mlp:16 --popsize 64 --episodes-per-candidate 8 --sigma-init 0.5 --budget 51200") in result.output
+    assert (
+        "the centre met none of Pendulum-v1's criteria (solved); settings that suit it: --search cmaes --policy "
+        "mlp:16 --popsize 64 --episodes-per-candidate 8 --sigma-init 0.5 --budget 51200"
+    ) in result.output
     evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "2"])
     assert "±" in evaluation.output and "balanced" not in evaluation.output
     assert "(Pendulum-v1 counts as solved at a mean return ≥ -200)" in evaluation.output
@@ -109,8 +140,19 @@ def test_the_settings_suggested_for_gymnasiums_tasks_are_valid_settings():
 
 
 def test_a_gymnasium_task_with_a_reward_threshold_is_judged_solved_or_not_by_it(tmp_path):
-    result, out = train(tmp_path, "Acrobot-v1", "--engine", "gymnasium", "--budget", "4", "--popsize", "4",
-                        "--eval-episodes", "2", "--quiet")
+    result, out = train(
+        tmp_path,
+        "Acrobot-v1",
+        "--engine",
+        "gymnasium",
+        "--budget",
+        "4",
+        "--popsize",
+        "4",
+        "--eval-episodes",
+        "2",
+        "--quiet",
+    )
     assert result.exit_code == 0, result.output
     assert "solved" in metrics(out)[-1]
     assert "the centre met none of Acrobot-v1's criteria (solved); try a larger --budget" in result.output
@@ -128,17 +170,20 @@ def test_config_file_is_read_and_overridden_by_options(tmp_path):
     assert (saved.budget, saved.sampler, saved.eval_episodes) == (20, "symmetric", 3)
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--env", "NoSuchEnv-v3"], "unknown environment 'NoSuchEnv-v3'"),
-    (["--policy", "cnn:3"], "accepted forms: linear, linear:nobias"),
-    (["--sampler", "genetic"], "'genetic' is not one of"),
-    (["--optimizer", "lbfgs"], "'lbfgs' is not one of"),
-    (["--sigma-init", "0"], "sigma_init: Input should be greater than 0"),
-    (["--popsize", "7"], "symmetric sampling needs an even popsize"),
-    (["--budget", "5"], "smaller than one generation"),
-    (["--env", "FrozenLake-v1"], "needs a 1-D Box"),
-    (["cartpole", "--env", "Pendulum-v1"], "two environments given"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--env", "NoSuchEnv-v3"], "unknown environment 'NoSuchEnv-v3'"),
+        (["--policy", "cnn:3"], "accepted forms: linear, linear:nobias"),
+        (["--sampler", "genetic"], "'genetic' is not one of"),
+        (["--optimizer", "lbfgs"], "'lbfgs' is not one of"),
+        (["--sigma-init", "0"], "sigma_init: Input should be greater than 0"),
+        (["--popsize", "7"], "symmetric sampling needs an even popsize"),
+        (["--budget", "5"], "smaller than one generation"),
+        (["--env", "FrozenLake-v1"], "needs a 1-D Box"),
+        (["cartpole", "--env", "Pendulum-v1"], "two environments given"),
+    ],
+)
 def test_bad_input_is_refused_before_any_work(tmp_path, args, message):
     result, out = train(tmp_path, *args, "--quiet")
     assert result.exit_code == 2 and message in result.output, result.output
@@ -161,8 +206,22 @@ class NaNRewardEnv(gymnasium.Env):
 
 def test_non_finite_returns_stop_the_run_name_the_candidate_and_keep_the_folder(tmp_path):
     gymnasium.register("drrl-test/NaNReward-v0", entry_point=NaNRewardEnv)
-    result, out = train(tmp_path, "--env", "drrl-test/NaNReward-v0", "--budget", "8", "--popsize", "4",
-                        "--policy", "linear:nobias", "--sigma-init", "1", "--eval-episodes", "1", "--quiet")
+    result, out = train(
+        tmp_path,
+        "--env",
+        "drrl-test/NaNReward-v0",
+        "--budget",
+        "8",
+        "--popsize",
+        "4",
+        "--policy",
+        "linear:nobias",
+        "--sigma-init",
+        "1",
+        "--eval-episodes",
+        "1",
+        "--quiet",
+    )
     assert result.exit_code == 1
     assert "generation 1: " in result.output and "candidate 0" in result.output
     assert "run folder and checkpoint (generation 0) kept" in result.output
@@ -194,7 +253,7 @@ def test_eval_explains_each_tasks_own_verdict(tmp_path):
 
 
 def test_a_run_that_meets_no_criterion_is_told_the_settings_that_suit_its_task(tmp_path):
-    result, out = train(tmp_path, "cartpole-po", "--budget", "16", "--eval-episodes", "4", "--quiet")
+    result, _out = train(tmp_path, "cartpole-po", "--budget", "16", "--eval-episodes", "4", "--quiet")
     assert result.exit_code == 0, result.output
     assert "settings that suit it: --policy rnn:4 --popsize 16" in result.output
 
@@ -204,9 +263,25 @@ def test_cmaes_and_model_based_on_ray_run_from_the_command_line(tmp_path):
     assert result.exit_code == 0, result.output
     assert RunFolder(out).load_checkpoint()["search"]["kind"] == "cmaes"
     pytest.importorskip("ray")
-    result, out = train(tmp_path, "cartpole", "--model-based", "--budget", "4", "--generations", "2",
-                        "--model-hidden", "8", "--eval-episodes", "4", "--backend", "ray", "--workers", "1",
-                        "--quiet", name="ray")
+    result, out = train(
+        tmp_path,
+        "cartpole",
+        "--model-based",
+        "--budget",
+        "4",
+        "--generations",
+        "2",
+        "--model-hidden",
+        "8",
+        "--eval-episodes",
+        "4",
+        "--backend",
+        "ray",
+        "--workers",
+        "1",
+        "--quiet",
+        name="ray",
+    )
     assert result.exit_code == 0, result.output
     assert "done: 2 iterations, 4 real episodes" in result.output
 
@@ -214,8 +289,11 @@ def test_cmaes_and_model_based_on_ray_run_from_the_command_line(tmp_path):
 def test_a_run_folder_belongs_to_one_process_and_a_killed_ones_folder_is_taken_over(tmp_path):
     out = tmp_path / "run"
     drrl = str(Path(sys.executable).with_name("drrl"))
-    process = subprocess.Popen([drrl, "train", "cartpole", "--budget", "100000", "--quiet", "--out", str(out)],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    process = subprocess.Popen(
+        [drrl, "train", "cartpole", "--budget", "100000", "--quiet", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         while not (out / "metrics.csv").exists():
             assert process.poll() is None
@@ -253,7 +331,16 @@ def test_a_full_disk_stops_the_run_in_one_line_and_keeps_the_last_checkpoint(tmp
 def test_a_nan_environment_stops_a_model_based_run_in_one_message(tmp_path):
     if "drrl-test/NaNRewardLimited-v0" not in gymnasium.registry:
         gymnasium.register("drrl-test/NaNRewardLimited-v0", entry_point=NaNRewardEnv, max_episode_steps=5)
-    result, out = train(tmp_path, "--env", "drrl-test/NaNRewardLimited-v0", "--model-based", "--budget", "4",
-                        "--eval-episodes", "2", "--quiet")
+    result, _out = train(
+        tmp_path,
+        "--env",
+        "drrl-test/NaNRewardLimited-v0",
+        "--model-based",
+        "--budget",
+        "4",
+        "--eval-episodes",
+        "2",
+        "--quiet",
+    )
     assert result.exit_code == 1 and "non-finite reward" in result.output, result.output
     assert "Traceback" not in result.output and "run folder and checkpoint (iteration 0) kept" in result.output

@@ -66,7 +66,7 @@ def continue_run(search: CMAES, generations: int) -> list:
         candidates = search.ask()
         search.tell(sphere(candidates))
         seen += [candidates, search.center, search.spread]
-    return seen + [search.state_dict()]
+    return [*seen, search.state_dict()]
 
 
 def assert_same(a, b) -> None:
@@ -76,7 +76,7 @@ def assert_same(a, b) -> None:
         assert a.cpu().numpy().tobytes() == b.cpu().numpy().tobytes()
     elif isinstance(a, (dict, list)):
         assert type(a) is type(b) and len(a) == len(b)
-        for x, y in (zip(a.values(), b.values()) if isinstance(a, dict) else zip(a, b)):
+        for x, y in zip(a.values(), b.values(), strict=True) if isinstance(a, dict) else zip(a, b, strict=True):
             assert_same(x, y)
         assert not isinstance(a, dict) or list(a) == list(b)
     else:
@@ -121,10 +121,13 @@ def test_state_holds_only_checkpointable_values():
     assert state["optimizer"]["_C"].dtype == torch.float64
 
 
-@pytest.mark.parametrize("other, message", [
-    (dict(popsize=10), "popsize=8"),
-    (dict(popsize=8, separable=True), "separable=False"),
-])
+@pytest.mark.parametrize(
+    "other, message",
+    [
+        (dict(popsize=10), "popsize=8"),
+        (dict(popsize=8, separable=True), "separable=False"),
+    ],
+)
 def test_state_refuses_a_search_with_other_settings(other, message):
     state = CMAES(torch.zeros(N), popsize=8).state_dict()
     with pytest.raises(ValueError, match=message):
@@ -142,21 +145,24 @@ def test_state_refuses_another_kind_of_state():
 
 
 # ------------------------------------------------------------------------------------------------ bad input
-@pytest.mark.parametrize("center, settings, message", [
-    (torch.zeros(2, 2), {}, "1-D"),
-    (torch.zeros(0), {}, "non-empty"),
-    (torch.tensor([0.0, math.nan]), {}, "finite"),
-    (torch.tensor([0.0, 1e33], dtype=torch.float64), {}, "below 1e\\+32"),
-    (torch.zeros(1), dict(separable=True), "at least 2 parameters"),
-    (torch.zeros(3), dict(separable=1), "separable"),
-    (torch.zeros(3), dict(popsize=1), "popsize must be an integer >= 2"),
-    (torch.zeros(3), dict(popsize=4.0), "popsize"),
-    (torch.zeros(3), dict(popsize=True), "popsize"),
-    (torch.zeros(3), dict(sigma_init=0.0), "sigma_init"),
-    (torch.zeros(3), dict(sigma_init=math.inf), "sigma_init"),
-    (torch.zeros(3), dict(seed=-1), "seed"),
-    (torch.zeros(3), dict(seed=1.5), "seed"),
-])
+@pytest.mark.parametrize(
+    "center, settings, message",
+    [
+        (torch.zeros(2, 2), {}, "1-D"),
+        (torch.zeros(0), {}, "non-empty"),
+        (torch.tensor([0.0, math.nan]), {}, "finite"),
+        (torch.tensor([0.0, 1e33], dtype=torch.float64), {}, "below 1e\\+32"),
+        (torch.zeros(1), dict(separable=True), "at least 2 parameters"),
+        (torch.zeros(3), dict(separable=1), "separable"),
+        (torch.zeros(3), dict(popsize=1), "popsize must be an integer >= 2"),
+        (torch.zeros(3), dict(popsize=4.0), "popsize"),
+        (torch.zeros(3), dict(popsize=True), "popsize"),
+        (torch.zeros(3), dict(sigma_init=0.0), "sigma_init"),
+        (torch.zeros(3), dict(sigma_init=math.inf), "sigma_init"),
+        (torch.zeros(3), dict(seed=-1), "seed"),
+        (torch.zeros(3), dict(seed=1.5), "seed"),
+    ],
+)
 def test_bad_settings_are_refused_with_what_is_allowed(center, settings, message):
     with pytest.raises(ValueError, match=message):
         CMAES(center, **{"popsize": 4, **settings})

@@ -7,15 +7,21 @@ from drrl.cli_model_based import with_model_based
 from drrl.config import TrainConfig, describe_errors, load_config_file
 
 
-@pytest.mark.parametrize("settings, message", [
-    ({"sampler": "genetic"}, "sampler: 'genetic' is not one of: reinforce, symmetric, supersymmetric"),
-    ({"optimizer": "lbfgs"}, "optimizer: 'lbfgs' is not one of: sgd, adam, clipup"),
-    ({"sigma_init": 0}, "sigma_init: Input should be greater than 0 (got 0)"),
-    ({"popsize": 7}, "symmetric sampling needs an even popsize"),
-    ({"sampler": "supersymmetric", "popsize": 10}, "supersymmetric sampling needs a popsize divisible by 4"),
-    ({"budget": 5, "popsize": 6}, "budget of 5 real episodes is smaller than one generation (6 candidates × 1 episode(s) each)"),
-    ({"popsiz": 10}, "popsiz: not a setting (did you mean popsize?)"),
-])
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        ({"sampler": "genetic"}, "sampler: 'genetic' is not one of: reinforce, symmetric, supersymmetric"),
+        ({"optimizer": "lbfgs"}, "optimizer: 'lbfgs' is not one of: sgd, adam, clipup"),
+        ({"sigma_init": 0}, "sigma_init: Input should be greater than 0 (got 0)"),
+        ({"popsize": 7}, "symmetric sampling needs an even popsize"),
+        ({"sampler": "supersymmetric", "popsize": 10}, "supersymmetric sampling needs a popsize divisible by 4"),
+        (
+            {"budget": 5, "popsize": 6},
+            "budget of 5 real episodes is smaller than one generation (6 candidates × 1 episode(s) each)",
+        ),
+        ({"popsiz": 10}, "popsiz: not a setting (did you mean popsize?)"),
+    ],
+)
 def test_invalid_settings_name_the_field_and_what_is_allowed(settings, message):
     with pytest.raises(ValidationError) as error:
         TrainConfig.model_validate(settings)
@@ -48,8 +54,12 @@ def test_the_config_files_the_docs_point_to_are_valid():
 
 def test_gymnasiums_envs_start_from_their_own_model_free_defaults_and_given_settings_win():
     hopper = TrainConfig(env="Hopper-v5")
-    assert (hopper.policy, hopper.sigma_init, hopper.popsize, hopper.fitness_shaping) == ("linear", 0.025, 16,
-                                                                                         "centered_ranks")
+    assert (hopper.policy, hopper.sigma_init, hopper.popsize, hopper.fitness_shaping) == (
+        "linear",
+        0.025,
+        16,
+        "centered_ranks",
+    )
     assert TrainConfig(env="Hopper-v5", sigma_init=0.1).sigma_init == 0.1
     for own in ("cartpole", "drrl/CartPole-v0", "baxter-reach-right"):
         assert TrainConfig(env=own).model_dump(exclude={"env"}) == TrainConfig().model_dump(exclude={"env"})

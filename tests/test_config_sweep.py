@@ -13,17 +13,69 @@ from drrl.models.settings import ModelBasedSettings
 from drrl.train import prepare
 
 VALUES = st.recursive(
-    st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats(allow_nan=True, allow_infinity=True)
-    | st.text(max_size=12) | st.sampled_from(["cartpole", "cartpole-po", "Pendulum-v1", "linear", "mlp:4", "rnn:2",
-                                              "cmaes", "symmetric", "reinforce", "cpu", "cuda", "lstm"]),
+    st.none()
+    | st.booleans()
+    | st.integers(-(2**70), 2**70)
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=12)
+    | st.sampled_from(
+        [
+            "cartpole",
+            "cartpole-po",
+            "Pendulum-v1",
+            "linear",
+            "mlp:4",
+            "rnn:2",
+            "cmaes",
+            "symmetric",
+            "reinforce",
+            "cpu",
+            "cuda",
+            "lstm",
+        ]
+    ),
     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=8), inner, max_size=3),
-    max_leaves=6)
-PLAUSIBLE = st.one_of(st.integers(0, 64), st.floats(0.001, 3.0), st.sampled_from(
-    ["cartpole", "cartpole-po", "cartpole-swingup", "linear", "linear:nobias", "mlp:4", "rnn:2", "lstm:2", "cmaes",
-     "sep-cmaes", "pgpe", "symmetric", "supersymmetric", "centered_ranks", "adam", "sgd", "lstm", "rnn", "known"]),
-    VALUES)  # three parts in four near what a user writes, one part anything
-FIELDS = st.sampled_from([*TrainConfig.model_fields, "model_based.hidden", "model_based.unfold",
-                          "model_based.reward", "model_based.generations", "popsise", "model-based"])
+    max_leaves=6,
+)
+PLAUSIBLE = st.one_of(
+    st.integers(0, 64),
+    st.floats(0.001, 3.0),
+    st.sampled_from(
+        [
+            "cartpole",
+            "cartpole-po",
+            "cartpole-swingup",
+            "linear",
+            "linear:nobias",
+            "mlp:4",
+            "rnn:2",
+            "lstm:2",
+            "cmaes",
+            "sep-cmaes",
+            "pgpe",
+            "symmetric",
+            "supersymmetric",
+            "centered_ranks",
+            "adam",
+            "sgd",
+            "lstm",
+            "rnn",
+            "known",
+        ]
+    ),
+    VALUES,
+)  # three parts in four near what a user writes, one part anything
+FIELDS = st.sampled_from(
+    [
+        *TrainConfig.model_fields,
+        "model_based.hidden",
+        "model_based.unfold",
+        "model_based.reward",
+        "model_based.generations",
+        "popsise",
+        "model-based",
+    ]
+)
 
 
 @st.composite
@@ -75,19 +127,47 @@ def test_generated_config_files_are_read_or_refused_with_a_message(tmp_path_fact
     assert isinstance(settings_read, dict)
 
 
-FLAGS = ["--policy", "--search", "--sampler", "--optimizer", "--fitness-shaping", "--popsize",
-         "--episodes-per-candidate", "--budget", "--sigma-init", "--center-lr", "--sigma-lr", "--eval-episodes",
-         "--eval-every", "--seed", "--checkpoint-every", "--model-based", "--model-kind", "--model-hidden",
-         "--overshoot", "--ensemble", "--generations", "--backend", "--workers", "--env", "--bogus"]
-FLAG_VALUES = st.one_of(st.integers(-3, 300).map(str), st.floats(allow_nan=True).map(str), st.text(max_size=8),
-                        st.sampled_from(["cartpole", "mlp:4", "rnn:2", "cmaes", "8", "0.1", "٨", "", "1e308"]))
+FLAGS = [
+    "--policy",
+    "--search",
+    "--sampler",
+    "--optimizer",
+    "--fitness-shaping",
+    "--popsize",
+    "--episodes-per-candidate",
+    "--budget",
+    "--sigma-init",
+    "--center-lr",
+    "--sigma-lr",
+    "--eval-episodes",
+    "--eval-every",
+    "--seed",
+    "--checkpoint-every",
+    "--model-based",
+    "--model-kind",
+    "--model-hidden",
+    "--overshoot",
+    "--ensemble",
+    "--generations",
+    "--backend",
+    "--workers",
+    "--env",
+    "--bogus",
+]
+FLAG_VALUES = st.one_of(
+    st.integers(-3, 300).map(str),
+    st.floats(allow_nan=True).map(str),
+    st.text(max_size=8),
+    st.sampled_from(["cartpole", "mlp:4", "rnn:2", "cmaes", "8", "0.1", "٨", "", "1e308"]),
+)
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(st.tuples(st.sampled_from(FLAGS), FLAG_VALUES), max_size=4))
 def test_generated_flags_start_a_run_or_are_refused_in_one_message(tmp_path_factory, flags):
-    import drrl.cli
     from click.testing import CliRunner
+
+    import drrl.cli
 
     prepared = []
     original = drrl.cli.run_and_report

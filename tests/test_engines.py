@@ -61,7 +61,7 @@ def test_an_ended_episode_stays_where_it_ended_until_the_next_reset():
     push_left = np.zeros(2, dtype=np.int64)
     terminated = np.zeros(2, dtype=bool)
     while not terminated.any():
-        observations, rewards, terminated, truncated, _ = env.step(push_left)
+        observations, rewards, terminated, _truncated, _ = env.step(push_left)
     ended = int(np.flatnonzero(terminated)[0])
     again, rewards, still_terminated, _, _ = env.step(push_left)
     assert np.array_equal(again[ended], observations[ended]) and rewards[ended] == 0 and still_terminated[ended]
@@ -83,8 +83,22 @@ def test_auto_picks_drrls_own_batch_for_its_envs_and_refuses_engines_that_cannot
 def test_a_run_names_the_engine_it_used_in_its_config(tmp_path, monkeypatch):
     monkeypatch.setattr(pool, "installed", lambda: False)
     out = tmp_path / "run"
-    result = CliRunner().invoke(main, ["train", "Acrobot-v1", "--budget", "4", "--popsize", "4", "--eval-episodes",
-                                       "2", "--quiet", "--out", str(out)])
+    result = CliRunner().invoke(
+        main,
+        [
+            "train",
+            "Acrobot-v1",
+            "--budget",
+            "4",
+            "--popsize",
+            "4",
+            "--eval-episodes",
+            "2",
+            "--quiet",
+            "--out",
+            str(out),
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert RunFolder(out).read_config().engine == "gymnasium"
     refused = CliRunner().invoke(main, ["train", "cartpole", "--engine", "envpool", "--out", str(tmp_path / "x")])

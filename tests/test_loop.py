@@ -15,10 +15,18 @@ from drrl.runs import RunFolder
 from drrl.train import prepare, resume, subscribers, train
 
 SOURCE = Path(__file__).parents[1] / "src" / "drrl"
-TINY_MODEL = {"hidden": [8], "unfold": 2, "overshoot": 4, "generations": 3, "fit_updates": 40, "refit_updates": 20,
-              "ensemble_size": 2}
-MODEL_BASED = TrainConfig(model_based=TINY_MODEL, popsize=6, episodes_per_candidate=2, budget=8, eval_episodes=4,
-                          seed=3)
+TINY_MODEL = {
+    "hidden": [8],
+    "unfold": 2,
+    "overshoot": 4,
+    "generations": 3,
+    "fit_updates": 40,
+    "refit_updates": 20,
+    "ensemble_size": 2,
+}
+MODEL_BASED = TrainConfig(
+    model_based=TINY_MODEL, popsize=6, episodes_per_candidate=2, budget=8, eval_episodes=4, seed=3
+)
 TIMING = {"wall_time", "fit_time", "search_time"}
 
 
@@ -64,8 +72,9 @@ def test_model_based_defaults_merge_in_the_config_alone():
 
 
 @pytest.mark.parametrize("stop_after", [1, 2])
-def test_a_stopped_model_based_run_resumes_to_the_uninterrupted_metrics_and_checkpoint(tmp_path, one_thread,
-                                                                                        stop_after):
+def test_a_stopped_model_based_run_resumes_to_the_uninterrupted_metrics_and_checkpoint(
+    tmp_path, one_thread, stop_after
+):
     whole, stopped = tmp_path / "whole", tmp_path / "stopped"
     counters = train(MODEL_BASED, whole)
     assert counters.iteration == 4 and counters.real_episodes == 8 and counters.imagined_episodes > 0
@@ -81,13 +90,28 @@ def test_a_stopped_model_based_run_resumes_to_the_uninterrupted_metrics_and_chec
     assert final.keys() == expected.keys() and all(torch.equal(final[key], expected[key]) for key in expected)
 
 
-NORMALISED = TrainConfig(env="Pendulum-v1", engine="gymnasium", policy="mlp:4", popsize=6, budget=36,
-                         eval_episodes=2, eval_share=1.0, checkpoint_every=2, seed=3)
+NORMALISED = TrainConfig(
+    env="Pendulum-v1",
+    engine="gymnasium",
+    policy="mlp:4",
+    popsize=6,
+    budget=36,
+    eval_episodes=2,
+    eval_share=1.0,
+    checkpoint_every=2,
+    seed=3,
+)
 
 
-@pytest.mark.parametrize("config", [MODEL_BASED.model_copy(update={"budget": 6}),
-                                    TrainConfig(search="cmaes", budget=48, eval_episodes=4, seed=2), NORMALISED],
-                         ids=["model-based PGPE", "model-free CMA-ES", "normalised observations"])
+@pytest.mark.parametrize(
+    "config",
+    [
+        MODEL_BASED.model_copy(update={"budget": 6}),
+        TrainConfig(search="cmaes", budget=48, eval_episodes=4, seed=2),
+        NORMALISED,
+    ],
+    ids=["model-based PGPE", "model-free CMA-ES", "normalised observations"],
+)
 def test_ray_equals_local_bit_for_bit(tmp_path, one_thread, config):
     pytest.importorskip("ray")
     train(config, tmp_path / "local")
@@ -182,14 +206,19 @@ def test_layers_import_downward_only(where):
 
 def test_no_import_circle():
     modules = {module_name(file): file for file in SOURCE.rglob("*.py")}
-    graph = {name: {imported for imported in drrl_imports(file) if imported in modules and imported != name
-                    and not name.startswith(imported + ".")}  # a module's own package is loaded first anyway
-             for name, file in modules.items()}
+    graph = {
+        name: {
+            imported
+            for imported in drrl_imports(file)
+            if imported in modules and imported != name and not name.startswith(imported + ".")
+        }  # a module's own package is loaded first anyway
+        for name, file in modules.items()
+    }
     done, path = set(), []
 
     def visit(name):
         if name in path:
-            raise AssertionError(f"import circle: {' -> '.join(path[path.index(name):] + [name])}")
+            raise AssertionError(f"import circle: {' -> '.join([*path[path.index(name) :], name])}")
         if name in done:
             return
         path.append(name)

@@ -16,15 +16,14 @@ from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings
 from drrl.runs import RunFolder
 from drrl.train import prepare, train
 
-
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 # 6 real episodes (2 + 2 + 2), a small model fitted briefly, 12 generations of 10 candidates × 4 imagined episodes.
-TINY_MODEL = dict(hidden=(16,), unfold=2, overshoot=6, fit_updates=100, refit_updates=80, generations=12,
-                  patience=12)
-SMALL = TrainConfig.model_validate(dict(popsize=10, episodes_per_candidate=4, budget=6, eval_episodes=10, seed=1,
-                                          model_based=TINY_MODEL))
+TINY_MODEL = dict(hidden=(16,), unfold=2, overshoot=6, fit_updates=100, refit_updates=80, generations=12, patience=12)
+SMALL = TrainConfig.model_validate(
+    dict(popsize=10, episodes_per_candidate=4, budget=6, eval_episodes=10, seed=1, model_based=TINY_MODEL)
+)
 # Runs that only need to work, not to learn: a few updates and generations.
 QUICK_MODEL = {**TINY_MODEL, "fit_updates": 30, "refit_updates": 30, "generations": 3, "patience": 3}
 
@@ -74,28 +73,39 @@ def test_model_based_keeps_the_centre_with_the_most_criteria_then_the_best_retur
 
 
 def test_the_in_model_search_stops_early_once_it_stops_improving():
-    config = TrainConfig.model_validate(dict(popsize=10, episodes_per_candidate=2, budget=2, eval_episodes=5,
-                                             model_based={**QUICK_MODEL, "generations": 200}))
+    config = TrainConfig.model_validate(
+        dict(
+            popsize=10,
+            episodes_per_candidate=2,
+            budget=2,
+            eval_episodes=5,
+            model_based={**QUICK_MODEL, "generations": 200},
+        )
+    )
     row = train(config).rows[0]
     assert 3 <= row["generations"] < 200
     assert row["imagined_episodes"] == row["generations"] * 10 * 2
 
 
 def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
-    short = EpisodeBuffer([Episode(np.zeros((9, 4), np.float32), np.zeros((8, 1), np.float32),
-                                   np.zeros(8, np.float32), True)])
+    short = EpisodeBuffer(
+        [Episode(np.zeros((9, 4), np.float32), np.zeros((8, 1), np.float32), np.zeros(8, np.float32), True)]
+    )
     settings = fitting_settings(FitSettings(unfold=2, overshoot=16), short)
     assert settings.overshoot == 6 and settings.unfold == 2
 
 
-@pytest.mark.parametrize("model_based, message", [
-    ({"model_kind": "gru"}, "model_based.model_kind: 'gru' is not one of: rnn, lstm"),
-    ({"overshoot": -1}, "model_based.overshoot: Input should be greater than or equal to 0"),
-    ({"hidden": [16, 0]}, "model_based.hidden: every layer width must be in [1, 65536]"),
-    ({"ensemble_size": 0}, "model_based.ensemble_size"),
-    ({"reward": "guess"}, "model_based.reward: 'guess' is not one of: auto, known, learned"),
-    ({"unknown": 1}, "model_based.unknown: not a setting; the settings are: initial_episodes"),
-])
+@pytest.mark.parametrize(
+    "model_based, message",
+    [
+        ({"model_kind": "gru"}, "model_based.model_kind: 'gru' is not one of: rnn, lstm"),
+        ({"overshoot": -1}, "model_based.overshoot: Input should be greater than or equal to 0"),
+        ({"hidden": [16, 0]}, "model_based.hidden: every layer width must be in [1, 65536]"),
+        ({"ensemble_size": 0}, "model_based.ensemble_size"),
+        ({"reward": "guess"}, "model_based.reward: 'guess' is not one of: auto, known, learned"),
+        ({"unknown": 1}, "model_based.unknown: not a setting; the settings are: initial_episodes"),
+    ],
+)
 def test_model_based_settings_are_validated_with_field_value_and_choices(model_based, message):
     from drrl.config import describe_errors
 
@@ -104,10 +114,13 @@ def test_model_based_settings_are_validated_with_field_value_and_choices(model_b
     assert message in describe_errors(error.value)
 
 
-@pytest.mark.parametrize("change, message", [
-    (dict(env="Pendulum-v1", model_based={"reward": "known"}), "no closed-form reward is known"),
-    (dict(budget=1), "fewer than model_based.initial_episodes"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(env="Pendulum-v1", model_based={"reward": "known"}), "no closed-form reward is known"),
+        (dict(budget=1), "fewer than model_based.initial_episodes"),
+    ],
+)
 def test_model_based_runs_are_checked_before_any_work(change, message):
     config = TrainConfig.model_validate({**SMALL.model_dump(), **change})
     with pytest.raises(ValueError, match=message):
@@ -127,21 +140,49 @@ def test_a_config_without_model_based_prepares_a_model_free_run():
 # ------------------------------------------------------------------------------------------------ the command
 def tiny_config(tmp_path):
     path = tmp_path / "tiny.json"
-    path.write_text(json.dumps({"model_based": QUICK_MODEL, "eval_episodes": 5, "popsize": 8,
-                                "episodes_per_candidate": 2}))
+    path.write_text(
+        json.dumps({"model_based": QUICK_MODEL, "eval_episodes": 5, "popsize": 8, "episodes_per_candidate": 2})
+    )
     return path
 
 
 def test_train_model_based_writes_the_run_folder_and_eval_reads_it(tmp_path):
     out = tmp_path / "run"
-    result = CliRunner().invoke(main, ["train", "cartpole", "--model-based", "--budget", "4", "--popsize", "10",
-                                       "--model-hidden", "16", "--overshoot", "6", "--model-kind", "lstm",
-                                       "--ensemble", "2", "--generations", "2",
-                                       "--config", str(tiny_config(tmp_path)), "--out", str(out), "--quiet"])
+    result = CliRunner().invoke(
+        main,
+        [
+            "train",
+            "cartpole",
+            "--model-based",
+            "--budget",
+            "4",
+            "--popsize",
+            "10",
+            "--model-hidden",
+            "16",
+            "--overshoot",
+            "6",
+            "--model-kind",
+            "lstm",
+            "--ensemble",
+            "2",
+            "--generations",
+            "2",
+            "--config",
+            str(tiny_config(tmp_path)),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert "4 real episodes" in result.output and "imagined steps apart" in result.output
-    assert {p.name for p in out.iterdir()} == {"config.json", "metrics.csv", "checkpoint.safetensors",
-                                               "learning_curve.png"}
+    assert {p.name for p in out.iterdir()} == {
+        "config.json",
+        "metrics.csv",
+        "checkpoint.safetensors",
+        "learning_curve.png",
+    }
     config = RunFolder(out).read_config()
     assert config.model_based.model_kind == "lstm" and config.model_based.ensemble_size == 2
     assert config.model_based.hidden == (16,) and config.model_based.overshoot == 6
@@ -157,13 +198,16 @@ def test_train_model_based_writes_the_run_folder_and_eval_reads_it(tmp_path):
     assert evaluation.exit_code == 0 and "balanced:" in evaluation.output
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--overshoot", "4"], "--overshoot only apply to a model-based run; add --model-based"),
-    (["--model-based", "--model-hidden", "16,x"], "--model-hidden: '16,x' is not a comma-separated list"),
-    (["--model-based", "--overshoot", "-2"], "model_based.overshoot: Input should be greater than or equal to 0"),
-    (["--model-based", "--model-kind", "gru"], "'gru' is not one of 'rnn', 'lstm'"),
-    (["--model-based", "--budget", "1"], "fewer than model_based.initial_episodes"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--overshoot", "4"], "--overshoot only apply to a model-based run; add --model-based"),
+        (["--model-based", "--model-hidden", "16,x"], "--model-hidden: '16,x' is not a comma-separated list"),
+        (["--model-based", "--overshoot", "-2"], "model_based.overshoot: Input should be greater than or equal to 0"),
+        (["--model-based", "--model-kind", "gru"], "'gru' is not one of 'rnn', 'lstm'"),
+        (["--model-based", "--budget", "1"], "fewer than model_based.initial_episodes"),
+    ],
+)
 def test_train_refuses_bad_model_based_options(tmp_path, args, message):
     result = CliRunner().invoke(main, ["train", "cartpole", *args, "--out", str(tmp_path / "run")])
     assert result.exit_code == 2 and message in result.output, result.output
@@ -185,8 +229,21 @@ def test_a_diverging_model_stops_the_run_and_keeps_the_data_and_the_model(tmp_pa
 
     monkeypatch.setattr(model_based, "fit", fit_then_diverge)
     out = tmp_path / "run"
-    result = CliRunner().invoke(main, ["train", "cartpole", "--model-based", "--budget", "4",
-                                       "--config", str(tiny_config(tmp_path)), "--out", str(out), "--quiet"])
+    result = CliRunner().invoke(
+        main,
+        [
+            "train",
+            "cartpole",
+            "--model-based",
+            "--budget",
+            "4",
+            "--config",
+            str(tiny_config(tmp_path)),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 1 and "loss turned non-finite" in result.output
     assert "run folder and checkpoint (iteration 1) kept" in result.output
     assert f"continue with: drrl train --resume {out}" in result.output
@@ -220,15 +277,31 @@ def test_a_stopped_model_based_run_resumes_from_the_command_line_to_the_uninterr
 
     def rows(folder):
         with (folder / "metrics.csv").open() as handle:
-            return [{k: v for k, v in row.items() if k not in ("wall_time", "fit_time", "search_time")}
-                    for row in csv.DictReader(handle)]
+            return [
+                {k: v for k, v in row.items() if k not in ("wall_time", "fit_time", "search_time")}
+                for row in csv.DictReader(handle)
+            ]
 
     assert rows(out) == rows(tmp_path / "whole") and len(rows(out)) == 3
 
 
 def test_compare_writes_one_png_and_one_csv_with_every_method(tmp_path):
-    result = CliRunner().invoke(main, ["compare", "--seeds", "2", "--budget", "16", "--model-based-budget", "2",
-                                       "--config", str(tiny_config(tmp_path)), "--out", str(tmp_path / "cmp")])
+    result = CliRunner().invoke(
+        main,
+        [
+            "compare",
+            "--seeds",
+            "2",
+            "--budget",
+            "16",
+            "--model-based-budget",
+            "2",
+            "--config",
+            str(tiny_config(tmp_path)),
+            "--out",
+            str(tmp_path / "cmp"),
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in (tmp_path / "cmp").iterdir()) == ["compare.csv", "compare.png"]
     with (tmp_path / "cmp" / "compare.csv").open() as handle:
@@ -246,7 +319,7 @@ def test_compare_averages_seeds_on_a_common_grid_of_real_episodes(tmp_path, monk
 
     runs = {0: [(8, -300.0), (16, -100.0)], 1: [(8, -200.0), (24, 0.0)]}
     monkeypatch.setattr(module, "run_method", lambda method, seed, budget, settings: runs[seed])
-    curve, = compare(tmp_path, seeds=2, methods=("SyS-PGPE",))
+    (curve,) = compare(tmp_path, seeds=2, methods=("SyS-PGPE",))
     assert curve.real_episodes.tolist() == [8, 16, 24]
     assert curve.mean.tolist() == [-250.0, -150.0, -50.0]  # each run held at its last measurement
     assert np.allclose(curve.high - curve.mean, [50.0, 50.0, 50.0])  # standard error of two values: |a − b| / 2
@@ -262,14 +335,23 @@ def test_compare_configs_keep_shared_settings_and_set_each_method():
 
 
 def test_model_based_runs_on_a_discrete_action_space_with_one_hot_actions(one_thread):
+    from gymnasium import spaces
+
     from drrl.loop import run
     from drrl.models.data import model_actions
-    from gymnasium import spaces
 
     assert model_actions([2, 0], spaces.Discrete(3)).tolist() == [[0, 0, 1], [1, 0, 0]]
     assert model_actions([[0.5], [-1.0]], spaces.Box(-1, 1, (1,))).tolist() == [[0.5], [-1.0]]
-    config = TrainConfig.model_validate({"env": "CartPole-v1", "budget": 4, "eval_episodes": 2, "popsize": 6,
-                                         "episodes_per_candidate": 2, "model_based": TINY_MODEL})
+    config = TrainConfig.model_validate(
+        {
+            "env": "CartPole-v1",
+            "budget": 4,
+            "eval_episodes": 2,
+            "popsize": 6,
+            "episodes_per_candidate": 2,
+            "model_based": TINY_MODEL,
+        }
+    )
     setup = prepare(config)
     counters = run(setup)
     actions = np.concatenate([episode.actions for episode in setup.world.buffer.episodes])

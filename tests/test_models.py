@@ -15,15 +15,15 @@ from drrl.models.quality import k_step_errors, model_quality_report
 from drrl.policies import linear
 from drrl.rollout import evaluate
 
-
-
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 def random_inputs(batch=3, length=7, observation_size=4, action_size=1, seed=0):
     generator = torch.Generator().manual_seed(seed)
-    return (torch.randn(batch, length, observation_size, generator=generator),
-            torch.randn(batch, length, action_size, generator=generator))
+    return (
+        torch.randn(batch, length, observation_size, generator=generator),
+        torch.randn(batch, length, action_size, generator=generator),
+    )
 
 
 def linear_system_episodes(count, steps, seed):
@@ -38,8 +38,9 @@ def linear_system_episodes(count, steps, seed):
         actions = rng.uniform(-1, 1, (steps, 1))
         for action in actions:
             observations.append(a @ observations[-1] + b @ action)
-        episodes.append(Episode(np.array(observations, np.float32), actions.astype(np.float32),
-                                np.zeros(steps, np.float32), False))
+        episodes.append(
+            Episode(np.array(observations, np.float32), actions.astype(np.float32), np.zeros(steps, np.float32), False)
+        )
     return episodes
 
 
@@ -73,7 +74,7 @@ def test_a_layer_computes_what_torchs_own_cell_computes(kind):
         x = torch.cat([observation, action], dim=-1)  # the scales are 0 and 1 until set_scales
         reference = cell(x, reference)
         expected = [reference] if kind == "rnn" else list(reference)
-        for ours, theirs in zip(state, expected):
+        for ours, theirs in zip(state, expected, strict=True):
             torch.testing.assert_close(ours[0], theirs)
 
 
@@ -94,8 +95,7 @@ def test_the_overshooting_part_reads_the_models_predictions_not_the_observations
     prediction = model.unfold(observations, actions, observed_steps=3)
     changed = observations.clone()
     changed[:, 3:] += 10.0  # observations of the future part: must not be read
-    torch.testing.assert_close(model.unfold(changed, actions, observed_steps=3).observations,
-                               prediction.observations)
+    torch.testing.assert_close(model.unfold(changed, actions, observed_steps=3).observations, prediction.observations)
     # and the prediction of each future step is fed back: unroll by hand
     state, previous = model.initial_state(3), None
     for t in range(8):
@@ -106,8 +106,9 @@ def test_the_overshooting_part_reads_the_models_predictions_not_the_observations
     # the observed part is read
     changed = observations.clone()
     changed[:, 2] += 1.0
-    assert not torch.allclose(model.unfold(changed, actions, observed_steps=3).observations[:, :, 5],
-                              prediction.observations[:, :, 5])
+    assert not torch.allclose(
+        model.unfold(changed, actions, observed_steps=3).observations[:, :, 5], prediction.observations[:, :, 5]
+    )
 
 
 def test_zero_future_inputs_ignore_the_fed_back_observation():
@@ -117,8 +118,9 @@ def test_zero_future_inputs_ignore_the_fed_back_observation():
     first, _ = model.step(torch.tensor([[1.0, 2.0]]), action, state, observed=False)
     second, _ = model.step(torch.tensor([[-3.0, 0.5]]), action, state, observed=False)
     # same network output (the change), added to different bases
-    torch.testing.assert_close(first.observations - torch.tensor([[1.0, 2.0]]),
-                               second.observations - torch.tensor([[-3.0, 0.5]]))
+    torch.testing.assert_close(
+        first.observations - torch.tensor([[1.0, 2.0]]), second.observations - torch.tensor([[-3.0, 0.5]])
+    )
     observed, _ = model.step(torch.tensor([[-3.0, 0.5]]), action, state, observed=True)
     assert not torch.allclose(observed.observations, second.observations)
 
@@ -126,13 +128,27 @@ def test_zero_future_inputs_ignore_the_fed_back_observation():
 @pytest.mark.parametrize("kind", ["rnn", "lstm"])
 def test_the_model_learns_a_known_linear_system(kind):
     torch.manual_seed(0)
-    training, held_out = EpisodeBuffer(linear_system_episodes(8, 40, seed=1)), EpisodeBuffer(
-        linear_system_episodes(2, 40, seed=2))
+    training, held_out = (
+        EpisodeBuffer(linear_system_episodes(8, 40, seed=1)),
+        EpisodeBuffer(linear_system_episodes(2, 40, seed=2)),
+    )
     model = WorldModel(2, 1, (32,), kind)
     model.set_scales(training.scales())
     untrained = k_step_errors(model, held_out, 10)
-    [report] = fit(model, training, FitSettings(unfold=2, overshoot=6, learn_reward=False, lr=2e-2, batch_size=256,
-                                                max_updates=100, validate_every=25, patience=20))
+    [report] = fit(
+        model,
+        training,
+        FitSettings(
+            unfold=2,
+            overshoot=6,
+            learn_reward=False,
+            lr=2e-2,
+            batch_size=256,
+            max_updates=100,
+            validate_every=25,
+            patience=20,
+        ),
+    )
     errors = k_step_errors(model, held_out, 10)  # in units of the per-step change
     assert report.stop == "max_updates" and report.valid_loss < 1.0
     assert errors[0] < 0.3 and errors[-1] < 0.5 and errors[-1] < untrained[-1] / 10
@@ -153,7 +169,7 @@ def test_windows_align_targets_and_mask_steps_past_the_end():
 
 def test_too_short_data_and_too_long_overshooting_are_clear_errors():
     buffer = EpisodeBuffer(linear_system_episodes(2, 10, seed=0))
-    with pytest.raises(ValueError, match="too short for the unfolding.*longest of the 2 episode\\(s\\) has 10"):
+    with pytest.raises(ValueError, match=r"too short for the unfolding.*longest of the 2 episode\(s\) has 10"):
         fit(WorldModel(2, 1, (4,)), buffer, FitSettings(unfold=12, overshoot=0))
     with pytest.raises(ValueError, match="overshooting horizon is longer than the data: 4 unfolded \\+ 8"):
         fit(WorldModel(2, 1, (4,)), buffer, FitSettings(unfold=4, overshoot=8))
@@ -173,11 +189,16 @@ def test_a_diverging_fit_stops_and_keeps_the_last_good_model(monkeypatch):
     model = WorldModel(2, 1, (8,))
     initial = [p.detach().clone() for p in model.parameters()]
     with pytest.warns(RuntimeWarning, match="diverged"):
-        [report] = fit(model, EpisodeBuffer(linear_system_episodes(4, 20, seed=0)),
-                       FitSettings(unfold=2, overshoot=2, max_updates=100, validate_every=10))
+        [report] = fit(
+            model,
+            EpisodeBuffer(linear_system_episodes(4, 20, seed=0)),
+            FitSettings(unfold=2, overshoot=2, max_updates=100, validate_every=10),
+        )
     assert report.stop == "diverged" and report.updates < 100 and np.isfinite(report.valid_loss)
     assert all(torch.isfinite(p).all() for p in model.parameters())
-    assert any(not torch.equal(p, q) for p, q in zip(model.parameters(), initial))  # trained until it broke
+    assert any(
+        not torch.equal(p, q) for p, q in zip(model.parameters(), initial, strict=True)
+    )  # trained until it broke
 
 
 def test_the_recorder_keeps_each_sub_environments_first_episode_exactly():
@@ -188,8 +209,7 @@ def test_the_recorder_keeps_each_sub_environments_first_episode_exactly():
     episodes = env.episodes()
     assert [len(e) for e in episodes] == [len(e.rewards) for e in episodes]
     assert sum(len(e) for e in episodes) == result.steps
-    np.testing.assert_allclose([e.rewards.sum() for e in episodes], result.episode_returns[:, 0].numpy(),
-                               rtol=1e-6)
+    np.testing.assert_allclose([e.rewards.sum() for e in episodes], result.episode_returns[:, 0].numpy(), rtol=1e-6)
     assert [e.terminated for e in episodes] == result.terminated[:, 0].tolist()
     assert all(len(e.observations) == len(e) + 1 for e in episodes)
 
@@ -198,7 +218,7 @@ def test_the_buffer_round_trips_through_its_state_dict():
     buffer = EpisodeBuffer(linear_system_episodes(3, 5, seed=0))
     copy = EpisodeBuffer.from_state_dict(buffer.state_dict())
     assert len(copy) == 3 and copy.num_steps == 15
-    for a, b in zip(buffer.episodes, copy.episodes):
+    for a, b in zip(buffer.episodes, copy.episodes, strict=True):
         np.testing.assert_array_equal(a.observations, b.observations)
         np.testing.assert_array_equal(a.actions, b.actions)
 
@@ -231,9 +251,10 @@ def test_each_member_of_the_batched_ensemble_computes_what_it_would_alone(kind, 
     together = ensemble.unfold(observations, actions, observed_steps=2)
     for k in range(3):
         alone = WorldModel(4, 1, hidden, kind)
-        alone.load_state_dict({name: tensor[k:k + 1] for name, tensor in ensemble.state_dict().items()})
-        torch.testing.assert_close(alone.unfold(observations, actions, observed_steps=2).observations[0],
-                                   together.observations[k])
+        alone.load_state_dict({name: tensor[k : k + 1] for name, tensor in ensemble.state_dict().items()})
+        torch.testing.assert_close(
+            alone.unfold(observations, actions, observed_steps=2).observations[0], together.observations[k]
+        )
 
 
 def test_gradients_are_clipped_for_each_member_apart():
@@ -247,8 +268,11 @@ def test_gradients_are_clipped_for_each_member_apart():
 
 def test_ensemble_members_are_fitted_on_different_held_out_episodes():
     model = WorldModel(2, 1, (8,), members=3)
-    reports = fit(model, EpisodeBuffer(linear_system_episodes(10, 20, seed=0)),
-                  FitSettings(unfold=2, overshoot=2, max_updates=20, validate_every=10))
+    reports = fit(
+        model,
+        EpisodeBuffer(linear_system_episodes(10, 20, seed=0)),
+        FitSettings(unfold=2, overshoot=2, max_updates=20, validate_every=10),
+    )
     assert [report.held_out_episodes for report in reports] == [2, 2, 2]
     assert len({report.valid_loss for report in reports}) == 3
     assert len({tuple(scale.tolist()) for scale in model.change_scale}) == 3  # each member's own training split
@@ -258,8 +282,9 @@ def test_the_imagined_env_is_a_vector_env_that_evaluate_runs_unchanged():
     torch.manual_seed(0)
     ensemble = WorldModel(4, 1, (8,), members=2)
     action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
-    env = ImaginedEnv(ensemble, cartpole_starts(), 4 * 3, action_space, horizon=20,
-                      known_reward=lookup("drrl/CartPole-v0").reward)
+    env = ImaginedEnv(
+        ensemble, cartpole_starts(), 4 * 3, action_space, horizon=20, known_reward=lookup("drrl/CartPole-v0").reward
+    )
     observations, _ = env.reset(seed=[11, 12, 13] * 4)
     assert observations.shape == (12, 4)
     assert {tuple(o) for o in observations} <= {tuple(s) for s in cartpole_starts()}  # real starts only
@@ -288,20 +313,32 @@ def test_the_imagined_env_can_use_the_models_own_reward_and_penalise_disagreemen
 
 # ------------------------------------------------------------------------------------------------ quality report
 def test_the_quality_report_plots_k_step_errors_of_each_variant(tmp_path):
-    training, held_out = EpisodeBuffer(linear_system_episodes(6, 30, seed=1)), EpisodeBuffer(
-        linear_system_episodes(2, 30, seed=2))
+    training, held_out = (
+        EpisodeBuffer(linear_system_episodes(6, 30, seed=1)),
+        EpisodeBuffer(linear_system_episodes(2, 30, seed=2)),
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        curves = model_quality_report(training, held_out, tmp_path / "quality.png", max_k=8, hidden=(16,),
-                                      settings=FitSettings(unfold=2, overshoot=4, learn_reward=False, lr=1e-2,
-                                                           max_updates=100))
+        curves = model_quality_report(
+            training,
+            held_out,
+            tmp_path / "quality.png",
+            max_k=8,
+            hidden=(16,),
+            settings=FitSettings(unfold=2, overshoot=4, learn_reward=False, lr=1e-2, max_updates=100),
+        )
     assert len(curves) == 3 and all(errors.shape == (8,) and np.isfinite(errors).all() for errors in curves.values())
     assert (tmp_path / "quality.png").stat().st_size > 1000
 
 
-@pytest.mark.parametrize("env_id, task", [("drrl/CartPole-v0", BalanceTask()),
-                                          ("drrl/CartPolePO-v0", PartiallyObservedTask()),
-                                          ("drrl/CartPoleSwingUp-v0", SwingUpTask())])
+@pytest.mark.parametrize(
+    "env_id, task",
+    [
+        ("drrl/CartPole-v0", BalanceTask()),
+        ("drrl/CartPolePO-v0", PartiallyObservedTask()),
+        ("drrl/CartPoleSwingUp-v0", SwingUpTask()),
+    ],
+)
 def test_known_rewards_on_observations_equal_the_tasks_rewards_on_states(env_id, task):
     states = np.random.default_rng(0).normal(size=(500, 4)) * [1.5, 1.0, 0.5, 1.0]
     steps = np.arange(500) % task.horizon + 1

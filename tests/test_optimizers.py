@@ -1,3 +1,5 @@
+import itertools
+
 import pytest
 import torch
 
@@ -32,7 +34,7 @@ def test_clipup_defaults_to_momentum_0_9_and_max_speed_twice_the_step():
     path, optimizer = clipup_steps([[0.0, 10.0]] * 30, lr=0.1)
     assert optimizer.param_groups[0]["momentum"] == 0.9
     assert optimizer.param_groups[0]["max_speed"] == pytest.approx(0.2)
-    steps = [b - a for a, b in zip([torch.zeros(2)] + path, path)]
+    steps = [b - a for a, b in itertools.pairwise([torch.zeros(2), *path])]
     assert max(step.norm().item() for step in steps) == pytest.approx(0.2)  # reached, never exceeded
     torch.testing.assert_close(steps[0], torch.tensor([0.0, -0.1]))
 
@@ -52,11 +54,14 @@ def test_clipup_state_round_trips_through_torch_state_dict():
     torch.testing.assert_close(copy.state[x]["velocity"], optimizer.state_dict()["state"][0]["velocity"])
 
 
-@pytest.mark.parametrize("settings, message", [
-    (dict(lr=0.0), "lr must be a positive finite number"),
-    (dict(lr=0.1, max_speed=-1.0), "max_speed must be a positive finite number"),
-    (dict(lr=0.1, momentum=1.0), r"momentum must be in \[0, 1\)"),
-])
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        (dict(lr=0.0), "lr must be a positive finite number"),
+        (dict(lr=0.1, max_speed=-1.0), "max_speed must be a positive finite number"),
+        (dict(lr=0.1, momentum=1.0), r"momentum must be in \[0, 1\)"),
+    ],
+)
 def test_clipup_refuses_bad_settings(settings, message):
     with pytest.raises(ValueError, match=message):
         ClipUp([torch.zeros(2, requires_grad=True)], **settings)

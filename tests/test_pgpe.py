@@ -34,8 +34,15 @@ def paper_mirror(e: float, sigma: float) -> float:
 
 # ------------------------------------------------------------------------------------------ hand-worked updates
 def test_symmetric_step_follows_2_31_to_2_33_on_hand_worked_numbers():
-    pgpe = PGPE(torch.tensor([1.0, -1.0]), popsize=4, sampler="symmetric", sigma_init=0.5, center_lr=0.1,
-                sigma_lr=0.2, max_sigma_change=0.5)
+    pgpe = PGPE(
+        torch.tensor([1.0, -1.0]),
+        popsize=4,
+        sampler="symmetric",
+        sigma_init=0.5,
+        center_lr=0.1,
+        sigma_lr=0.2,
+        max_sigma_change=0.5,
+    )
     inject(pgpe, [1.0, -2.0], [0.5, 1.0])  # ε_1 = (0.5, -1), ε_2 = (0.25, 0.5)
     close(pgpe.ask(), [[1.5, -2.0], [0.5, 0.0], [1.25, -0.5], [0.75, -1.5]])  # μ+ε_1, μ-ε_1, μ+ε_2, μ-ε_2
 
@@ -53,23 +60,36 @@ def test_symmetric_step_follows_2_31_to_2_33_on_hand_worked_numbers():
     # second tell: 2.33 with the old baseline: b = 0.1 · 1 + 0.9 · mean(r) = 0.1 + 0.9 · 2.5 = 2.35
     inject(pgpe, [2.0, 0.0], [-1.0, 1.0])
     sigma, mu = [0.5375, 0.65], [1.0, -1.1]
-    eps = [[s * z for s, z in zip(sigma, row)] for row in ([2.0, 0.0], [-1.0, 1.0])]
+    eps = [[s * z for s, z in zip(sigma, row, strict=True)] for row in ([2.0, 0.0], [-1.0, 1.0])]
     pgpe.ask()
     rewards = [4.0, 2.0, 1.0, 3.0]
     metrics = pgpe.tell(torch.tensor(rewards))
     b = 0.1 * 1.0 + 0.9 * 2.5
     pairs = [(4.0, 2.0), (1.0, 3.0)]
-    step_mu = [0.1 * sum(e[i] * (rp - rm) / 2 for e, (rp, rm) in zip(eps, pairs)) / 2 for i in range(2)]
-    step_sigma = [0.2 * sum(((rp + rm) / 2 - b) * (e[i] ** 2 - sigma[i] ** 2) / sigma[i]
-                            for e, (rp, rm) in zip(eps, pairs)) / 2 for i in range(2)]
+    step_mu = [0.1 * sum(e[i] * (rp - rm) / 2 for e, (rp, rm) in zip(eps, pairs, strict=True)) / 2 for i in range(2)]
+    step_sigma = [
+        0.2
+        * sum(
+            ((rp + rm) / 2 - b) * (e[i] ** 2 - sigma[i] ** 2) / sigma[i] for e, (rp, rm) in zip(eps, pairs, strict=True)
+        )
+        / 2
+        for i in range(2)
+    ]
     assert metrics["baseline"] == pytest.approx(b)
-    close(pgpe.center, [m + d for m, d in zip(mu, step_mu)])
-    close(pgpe.sigma, [s + d for s, d in zip(sigma, step_sigma)])
+    close(pgpe.center, [m + d for m, d in zip(mu, step_mu, strict=True)])
+    close(pgpe.sigma, [s + d for s, d in zip(sigma, step_sigma, strict=True)])
 
 
 def test_reinforce_step_is_2_28_2_29_scaled_by_sigma_squared_with_the_sign_fixed():
-    pgpe = PGPE(torch.zeros(2), popsize=2, sampler="reinforce", sigma_init=0.5, center_lr=0.1, sigma_lr=0.2,
-                max_sigma_change=0.5)
+    pgpe = PGPE(
+        torch.zeros(2),
+        popsize=2,
+        sampler="reinforce",
+        sigma_init=0.5,
+        center_lr=0.1,
+        sigma_lr=0.2,
+        max_sigma_change=0.5,
+    )
     inject(pgpe, [1.0, 0.0], [-2.0, 1.0])  # t_1 = (0.5, 0), t_2 = (-1, 0.5)
     close(pgpe.ask(), [[0.5, 0.0], [-1.0, 0.5]])
     pgpe.tell(torch.tensor([4.0, 2.0]))
@@ -81,8 +101,15 @@ def test_reinforce_step_is_2_28_2_29_scaled_by_sigma_squared_with_the_sign_fixed
 
 
 def test_supersymmetric_step_on_hand_worked_numbers():
-    pgpe = PGPE(torch.zeros(1), popsize=8, sampler="supersymmetric", sigma_init=1.0, center_lr=0.1,
-                sigma_lr=0.1, max_sigma_change=0.5)
+    pgpe = PGPE(
+        torch.zeros(1),
+        popsize=8,
+        sampler="supersymmetric",
+        sigma_init=1.0,
+        center_lr=0.1,
+        sigma_lr=0.1,
+        max_sigma_change=0.5,
+    )
     inject(pgpe, [0.3], [-1.5])
     candidates = pgpe.ask()[:, 0].tolist()
     e1, e2 = 0.3, -1.5
@@ -130,8 +157,10 @@ def test_mirror_reflects_probability_about_the_half_normal_median(sigma):
     eps = torch.tensor(magnitudes + [-m for m in magnitudes], dtype=torch.float32)
     mirrored = mirror_about_median(eps, torch.full_like(eps, sigma))
     assert torch.equal(torch.sign(mirrored), torch.sign(eps))
-    worst = max(abs(half_normal_cdf(abs(m), sigma) - (1 - half_normal_cdf(abs(e), sigma)))
-                for e, m in zip(eps.tolist(), mirrored.tolist()))
+    worst = max(
+        abs(half_normal_cdf(abs(m), sigma) - (1 - half_normal_cdf(abs(e), sigma)))
+        for e, m in zip(eps.tolist(), mirrored.tolist(), strict=True)
+    )
     assert worst < 2.5e-3  # the paper's fit is within 0.002 of the exact mirror in probability
     median = torch.tensor([HALF_NORMAL_MEDIAN * sigma])
     close(mirror_about_median(median, torch.tensor([sigma])), [HALF_NORMAL_MEDIAN * sigma])
@@ -155,8 +184,11 @@ def test_mirror_is_finite_at_zero_and_at_twice_the_median():
 
 # ------------------------------------------------------------------------------------------------ convergence
 TARGET = torch.tensor([0.5, -1.0, 1.5, 0.0, -0.5])
-STEP = {"sgd": dict(center_lr=1.0, generations=150), "adam": dict(center_lr=0.1, generations=150),
-        "clipup": dict(center_lr=0.01, generations=250)}
+STEP = {
+    "sgd": dict(center_lr=1.0, generations=150),
+    "adam": dict(center_lr=0.1, generations=150),
+    "clipup": dict(center_lr=0.01, generations=250),
+}
 
 
 @pytest.mark.parametrize("optimizer", OPTIMIZERS)
@@ -164,8 +196,16 @@ STEP = {"sgd": dict(center_lr=1.0, generations=150), "adam": dict(center_lr=0.1,
 def test_every_sampler_and_optimizer_maximise_a_concave_quadratic(sampler, optimizer):
     settings = dict(STEP[optimizer])
     generations = settings.pop("generations")
-    pgpe = PGPE(torch.zeros(5), popsize=32, sampler=sampler, optimizer=optimizer, sigma_init=0.5, sigma_lr=0.05,
-                seed=0, **settings)
+    pgpe = PGPE(
+        torch.zeros(5),
+        popsize=32,
+        sampler=sampler,
+        optimizer=optimizer,
+        sigma_init=0.5,
+        sigma_lr=0.05,
+        seed=0,
+        **settings,
+    )
     for _ in range(generations):
         x = pgpe.ask()
         pgpe.tell(-(x - TARGET).square().sum(1))
@@ -174,8 +214,15 @@ def test_every_sampler_and_optimizer_maximise_a_concave_quadratic(sampler, optim
 
 
 def test_centered_ranks_converge_with_a_zero_baseline():
-    pgpe = PGPE(torch.zeros(5), popsize=16, fitness_shaping="centered_ranks", sigma_init=0.5, center_lr=2.0,
-                sigma_lr=0.5, seed=0)
+    pgpe = PGPE(
+        torch.zeros(5),
+        popsize=16,
+        fitness_shaping="centered_ranks",
+        sigma_init=0.5,
+        center_lr=2.0,
+        sigma_lr=0.5,
+        seed=0,
+    )
     for _ in range(150):
         x = pgpe.ask()
         metrics = pgpe.tell(-1000 * (x - TARGET).square().sum(1) - 123.0)  # scale and offset do not matter
@@ -228,7 +275,7 @@ def test_restored_search_continues_bit_identically(sampler, optimizer):
 
     restored = PGPE(torch.ones(5), seed=99, **settings)
     restored.load_state_dict(state)
-    for ask, center in zip(asks, centers):
+    for ask, center in zip(asks, centers, strict=True):
         candidates = restored.ask()
         assert torch.equal(candidates, ask)
         restored.tell(quadratic(candidates))
@@ -252,35 +299,41 @@ def test_state_saved_between_ask_and_tell_keeps_the_pending_candidates():
 
 def test_state_refuses_a_search_with_other_settings():
     state = PGPE(torch.zeros(3), popsize=4).state_dict()
-    with pytest.raises(ValueError, match="sampler='symmetric'.*sampler='reinforce'"):
+    with pytest.raises(ValueError, match=r"sampler='symmetric'.*sampler='reinforce'"):
         PGPE(torch.zeros(3), popsize=4, sampler="reinforce").load_state_dict(state)
     with pytest.raises(ValueError, match="num_params"):
         PGPE(torch.zeros(4), popsize=4).load_state_dict(state)
 
 
 # ------------------------------------------------------------------------------------------------- bad input
-@pytest.mark.parametrize("settings, message", [
-    (dict(sampler="antithetic"), "unknown sampler 'antithetic'; choose one of: reinforce, symmetric, supersymmetric"),
-    (dict(optimizer="rmsprop"), "unknown optimizer 'rmsprop'; choose one of: sgd, adam, clipup"),
-    (dict(fitness_shaping="ranks"), "unknown fitness_shaping 'ranks'; choose one of: none, centered_ranks"),
-    (dict(sigma_init=0.0), "sigma_init must be a positive finite number, got 0.0"),
-    (dict(sigma_init=-1.0), "sigma_init must be a positive finite number"),
-    (dict(sigma_init=math.nan), "sigma_init must be a positive finite number"),
-    (dict(sigma_init=math.inf), "sigma_init must be a positive finite number"),
-    (dict(center_lr=0.0), "center_lr must be a positive finite number"),
-    (dict(sigma_lr=-0.1), "sigma_lr must be a positive finite number"),
-    (dict(popsize=1), "popsize must be an integer >= 2, got 1"),
-    (dict(popsize=4.0), "popsize must be an integer >= 2"),
-    (dict(popsize=7), "symmetric sampling draws pairs μ ± ε, so popsize must be a multiple of 2; got 7"),
-    (dict(popsize=6, sampler="supersymmetric"), "popsize must be a multiple of 4; got 6"),
-    (dict(baseline_decay=1.5), "baseline_decay .* must be in \\[0, 1\\]"),
-    (dict(max_sigma_change=1.0), "max_sigma_change .* must be in \\(0, 1\\)"),
-    (dict(optimizer_options={"lr": 0.1}), "does not take option\\(s\\) 'lr'; it accepts: momentum, dampening"),
-    (dict(optimizer="clipup", optimizer_options={"betas": (0.9, 0.99)}), "it accepts: momentum, max_speed"),
-    (dict(center=torch.zeros(2, 3)), "center must be a non-empty 1-D tensor"),
-    (dict(center=torch.zeros(0)), "center must be a non-empty 1-D tensor"),
-    (dict(center=torch.tensor([0.0, math.nan])), "center must hold finite real numbers"),
-])
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        (
+            dict(sampler="antithetic"),
+            "unknown sampler 'antithetic'; choose one of: reinforce, symmetric, supersymmetric",
+        ),
+        (dict(optimizer="rmsprop"), "unknown optimizer 'rmsprop'; choose one of: sgd, adam, clipup"),
+        (dict(fitness_shaping="ranks"), "unknown fitness_shaping 'ranks'; choose one of: none, centered_ranks"),
+        (dict(sigma_init=0.0), "sigma_init must be a positive finite number, got 0.0"),
+        (dict(sigma_init=-1.0), "sigma_init must be a positive finite number"),
+        (dict(sigma_init=math.nan), "sigma_init must be a positive finite number"),
+        (dict(sigma_init=math.inf), "sigma_init must be a positive finite number"),
+        (dict(center_lr=0.0), "center_lr must be a positive finite number"),
+        (dict(sigma_lr=-0.1), "sigma_lr must be a positive finite number"),
+        (dict(popsize=1), "popsize must be an integer >= 2, got 1"),
+        (dict(popsize=4.0), "popsize must be an integer >= 2"),
+        (dict(popsize=7), "symmetric sampling draws pairs μ ± ε, so popsize must be a multiple of 2; got 7"),
+        (dict(popsize=6, sampler="supersymmetric"), "popsize must be a multiple of 4; got 6"),
+        (dict(baseline_decay=1.5), "baseline_decay .* must be in \\[0, 1\\]"),
+        (dict(max_sigma_change=1.0), "max_sigma_change .* must be in \\(0, 1\\)"),
+        (dict(optimizer_options={"lr": 0.1}), "does not take option\\(s\\) 'lr'; it accepts: momentum, dampening"),
+        (dict(optimizer="clipup", optimizer_options={"betas": (0.9, 0.99)}), "it accepts: momentum, max_speed"),
+        (dict(center=torch.zeros(2, 3)), "center must be a non-empty 1-D tensor"),
+        (dict(center=torch.zeros(0)), "center must be a non-empty 1-D tensor"),
+        (dict(center=torch.tensor([0.0, math.nan])), "center must hold finite real numbers"),
+    ],
+)
 def test_bad_settings_are_refused_with_what_is_allowed(settings, message):
     arguments = dict(center=torch.zeros(3), popsize=8) | settings
     with pytest.raises(ValueError, match=message):

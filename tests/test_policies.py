@@ -32,10 +32,11 @@ def test_mlp_matches_torch_sequential_per_candidate():
     obs = torch.randn(P, B, 4)
     action, _ = policy.act(policy.unflatten(params), obs, None)
     for p in range(P):
-        net = torch.nn.Sequential(torch.nn.Linear(4, 8), torch.nn.Tanh(), torch.nn.Linear(8, 6), torch.nn.Tanh(),
-                                  torch.nn.Linear(6, 2))
+        net = torch.nn.Sequential(
+            torch.nn.Linear(4, 8), torch.nn.Tanh(), torch.nn.Linear(8, 6), torch.nn.Tanh(), torch.nn.Linear(6, 2)
+        )
         weights = policy.unflatten(params[p : p + 1])
-        for layer, (w, b) in zip(net[::2], zip(weights[::2], weights[1::2])):
+        for layer, (w, b) in zip(net[::2], zip(weights[::2], weights[1::2], strict=True), strict=True):
             layer.weight.data = w[0].T.contiguous()
             layer.bias.data = b[0, 0]
         torch.testing.assert_close(action[p], net(obs[p]))
@@ -62,8 +63,10 @@ def test_unflatten_rejects_the_wrong_number_of_parameters():
         linear(4, 1).unflatten(torch.zeros(2, 6))
 
 
-@pytest.mark.parametrize("spec, num_params", [("linear", 5), ("linear:nobias", 4), ("multilinear:3", 15),
-                                              ("mlp:8,8", 4 * 8 + 8 + 8 * 8 + 8 + 8 + 1)])
+@pytest.mark.parametrize(
+    "spec, num_params",
+    [("linear", 5), ("linear:nobias", 4), ("multilinear:3", 15), ("mlp:8,8", 4 * 8 + 8 + 8 * 8 + 8 + 8 + 1)],
+)
 def test_specs_build_the_named_policy(spec, num_params):
     assert make_policy(spec, 4, 1).num_params == num_params
 

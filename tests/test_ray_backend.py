@@ -62,19 +62,22 @@ def backends():
 
 
 def same(a, b) -> bool:
-    return (torch.equal(a.episode_returns, b.episode_returns) and torch.equal(a.terminated, b.terminated)
-            and (a.steps, a.episodes) == (b.steps, b.episodes))
+    return (
+        torch.equal(a.episode_returns, b.episode_returns)
+        and torch.equal(a.terminated, b.terminated)
+        and (a.steps, a.episodes) == (b.steps, b.episodes)
+    )
 
 
 def test_ray_chunks_give_the_local_backend_s_numbers(backends):
-    local, remote, params, expected = backends
+    _local, remote, params, expected = backends
     assert remote.chunks == [(0, 51), (51, 101)]
     assert same(remote.evaluate(params, seed=5), expected)
     assert not same(remote.evaluate(params, seed=6), expected)
 
 
 def test_a_killed_worker_s_chunk_runs_again_and_the_numbers_do_not_change(backends):
-    local, remote, params, expected = backends
+    _local, remote, params, expected = backends
     victim = remote.pids()[0]
     threading.Timer(0.1, os.kill, (victim, signal.SIGKILL)).start()  # while its chunk is running
     with pytest.warns(UserWarning, match="a Ray worker died while evaluating candidates 0–50"):

@@ -19,14 +19,18 @@ P, B, STEPS = 3, 2, 6
 def layer_weights(policy, params: torch.Tensor, candidate: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
     """Candidate p's (fused matrix, bias) per layer, in float64."""
     weights = policy.unflatten(params)
-    return [(weights[2 * i][candidate].double(), weights[2 * i + 1][candidate, 0].double())
-            for i in range(len(policy.hidden))]
+    return [
+        (weights[2 * i][candidate].double(), weights[2 * i + 1][candidate, 0].double())
+        for i in range(len(policy.hidden))
+    ]
 
 
 def torch_rnn_cells(policy, params, candidate) -> list[torch.nn.RNNCell]:
     """nn.RNNCell per layer loaded with candidate p's weights: W = fused[:n]ᵀ, B = fused[n:]ᵀ, one bias."""
     cells = []
-    for fan_in, width, (fused, bias) in zip(policy.inputs, policy.hidden, layer_weights(policy, params, candidate)):
+    for fan_in, width, (fused, bias) in zip(
+        policy.inputs, policy.hidden, layer_weights(policy, params, candidate), strict=True
+    ):
         cell = torch.nn.RNNCell(fan_in, width).double()
         cell.weight_ih.data, cell.weight_hh.data = fused[:fan_in].T.contiguous(), fused[fan_in:].T.contiguous()
         cell.bias_ih.data, cell.bias_hh.data = bias.clone(), torch.zeros(width, dtype=torch.float64)
@@ -38,7 +42,9 @@ def torch_lstm_cells(policy, params, candidate) -> list[torch.nn.LSTMCell]:
     """nn.LSTMCell per layer loaded with candidate p's weights; our gate columns (i, f, o, g) → its rows
     (i, f, g, o)."""
     cells = []
-    for fan_in, width, (fused, bias) in zip(policy.inputs, policy.hidden, layer_weights(policy, params, candidate)):
+    for fan_in, width, (fused, bias) in zip(
+        policy.inputs, policy.hidden, layer_weights(policy, params, candidate), strict=True
+    ):
         i, f, o, g = (torch.arange(width) + k * width for k in range(4))
         order = torch.cat([i, f, g, o])
         cell = torch.nn.LSTMCell(fan_in, width).double()
@@ -60,8 +66,9 @@ def test_elman_steps_equal_torch_rnn_cells_per_candidate(hidden):
     params = torch.randn(P, policy.num_params, generator=torch.Generator().manual_seed(0))
     observations = torch.randn(STEPS, P, B, 4, generator=torch.Generator().manual_seed(1))
     weights, state = policy.unflatten(params), policy.initial_state(P, B)
-    references = [(torch_rnn_cells(policy, params, p), [torch.zeros(B, w, dtype=torch.float64) for w in hidden])
-                  for p in range(P)]
+    references = [
+        (torch_rnn_cells(policy, params, p), [torch.zeros(B, w, dtype=torch.float64) for w in hidden]) for p in range(P)
+    ]
     for obs in observations:
         action, state = policy.act(weights, obs, state)
         for p, (cells, memory) in enumerate(references):
@@ -79,7 +86,7 @@ def test_lstm_steps_equal_torch_lstm_cells_per_candidate(hidden):
     observations = torch.randn(STEPS, P, B, 4, generator=torch.Generator().manual_seed(1))
     weights, state = policy.unflatten(params), policy.initial_state(P, B)
     zeros = [torch.zeros(B, w, dtype=torch.float64) for w in hidden]
-    references = [(torch_lstm_cells(policy, params, p), list(zip(zeros, zeros))) for p in range(P)]
+    references = [(torch_lstm_cells(policy, params, p), list(zip(zeros, zeros, strict=True))) for p in range(P)]
     for obs in observations:
         action, state = policy.act(weights, obs, state)
         for p, (cells, memory) in enumerate(references):
@@ -87,7 +94,7 @@ def test_lstm_steps_equal_torch_lstm_cells_per_candidate(hidden):
             for layer, cell in enumerate(cells):
                 memory[layer] = cell(x, memory[layer])
                 x = memory[layer][0]
-                for ours, theirs in zip(state[layer], memory[layer]):  # (h, c)
+                for ours, theirs in zip(state[layer], memory[layer], strict=True):  # (h, c)
                     torch.testing.assert_close(ours[p].double(), theirs, rtol=0, atol=1e-6)
             torch.testing.assert_close(action[p].double(), read_out(policy, params, p, x), rtol=0, atol=1e-6)
 
@@ -108,7 +115,7 @@ def test_initial_center_acts_zero_and_scales_its_weights(make):
     weights = policy.unflatten(center[None])
     action, _ = policy.act(weights, torch.randn(1, 7, 4), policy.initial_state(1, 7))
     assert not action.any()  # read-out 0: the centre acts 0
-    for layer, (fan_in, width) in enumerate(zip(policy.inputs, policy.hidden)):
+    for layer, (fan_in, width) in enumerate(zip(policy.inputs, policy.hidden, strict=True)):
         fused, bias = weights[2 * layer][0], weights[2 * layer + 1][0, 0]
         assert 0.7 < fused[:fan_in].std() * fan_in**0.5 < 1.3  # input rows ~ N(0, 1/n)
         for block in fused[fan_in:].split(width, dim=1):  # one w × w recurrent block per gate
@@ -171,16 +178,29 @@ def memory_is_isolated(policy) -> bool:
     own, and each episode run on its own from a fresh memory."""
     population, episodes, seed = 4, 3, 11
     params = policy.initial_center(torch.Generator().manual_seed(2)) + 0.3 * torch.randn(
-        population, policy.num_params, generator=torch.Generator().manual_seed(3))
+        population, policy.num_params, generator=torch.Generator().manual_seed(3)
+    )
     env, env_one_candidate = (make_batch_env("cartpole-po", n) for n in (population * episodes, episodes))
     together = evaluate(policy, params, env, episodes, seed=seed).episode_returns
     again = evaluate(policy, params, env, episodes, seed=seed).episode_returns
-    per_candidate = torch.cat([evaluate(policy, params[p : p + 1], env_one_candidate, episodes, seed).episode_returns
-                               for p in range(population)])
-    per_episode = torch.tensor([[one_episode(policy, params[p : p + 1], s) for s in episode_seeds(seed, 1, episodes)]
-                                for p in range(population)], dtype=torch.float64)
-    return (torch.equal(together, again) and torch.equal(together, per_candidate)
-            and torch.allclose(together, per_episode, rtol=0, atol=1e-9))
+    per_candidate = torch.cat(
+        [
+            evaluate(policy, params[p : p + 1], env_one_candidate, episodes, seed).episode_returns
+            for p in range(population)
+        ]
+    )
+    per_episode = torch.tensor(
+        [
+            [one_episode(policy, params[p : p + 1], s) for s in episode_seeds(seed, 1, episodes)]
+            for p in range(population)
+        ],
+        dtype=torch.float64,
+    )
+    return (
+        torch.equal(together, again)
+        and torch.equal(together, per_candidate)
+        and torch.allclose(together, per_episode, rtol=0, atol=1e-9)
+    )
 
 
 @pytest.mark.parametrize("policy", [rnn(2, 1, [6]), lstm(2, 1, [4, 5])])
@@ -188,8 +208,9 @@ def test_memory_starts_fresh_per_episode_and_stays_with_its_candidate(policy):
     assert memory_is_isolated(policy)
 
 
-@pytest.mark.parametrize("leaky", [LeakyAcrossRollouts(2, 1, [4]), LeakyAcrossCandidates(2, 1, [6]),
-                                   LeakyAcrossEpisodes(2, 1, [6])])
+@pytest.mark.parametrize(
+    "leaky", [LeakyAcrossRollouts(2, 1, [4]), LeakyAcrossCandidates(2, 1, [6]), LeakyAcrossEpisodes(2, 1, [6])]
+)
 def test_the_isolation_check_catches_leaking_memory(leaky):
     assert not memory_is_isolated(leaky)
 
@@ -229,8 +250,15 @@ class CueRecall(VectorEnv):
 
 def search_cue_recall(policy, generations: int = 30, popsize: int = 16, episodes: int = 8) -> float:
     """PGPE on the cue task; the centre's mean return over 64 fresh episodes."""
-    search = PGPE(policy.initial_center(torch.Generator().manual_seed(0)), popsize=popsize, sigma_init=0.5,
-                  center_lr=0.1, optimizer="adam", fitness_shaping="centered_ranks", seed=0)
+    search = PGPE(
+        policy.initial_center(torch.Generator().manual_seed(0)),
+        popsize=popsize,
+        sigma_init=0.5,
+        center_lr=0.1,
+        optimizer="adam",
+        fitness_shaping="centered_ranks",
+        seed=0,
+    )
     env = CueRecall(popsize * episodes)
     for generation in range(generations):
         search.tell(evaluate(policy, search.ask(), env, episodes, seed=generation).returns.float())
@@ -248,8 +276,9 @@ def test_cue_recall_needs_memory_and_pgpe_finds_it():
 # ---------------------------------------------------------------------------------------------------- specs
 
 
-@pytest.mark.parametrize("spec, kind, hidden", [("rnn:16", ElmanRNN, [16]), ("lstm:32,32", LSTM, [32, 32]),
-                                                (" lstm:3 ", LSTM, [3])])
+@pytest.mark.parametrize(
+    "spec, kind, hidden", [("rnn:16", ElmanRNN, [16]), ("lstm:32,32", LSTM, [32, 32]), (" lstm:3 ", LSTM, [3])]
+)
 def test_specs_build_recurrent_policies(spec, kind, hidden):
     policy = make_policy(spec, 2, 1)
     assert type(policy) is kind and policy.hidden == hidden

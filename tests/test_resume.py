@@ -37,10 +37,18 @@ def same_state(a: Path, b: Path) -> bool:
     search_a, search_b = first.pop("search"), second.pop("search")
     first.pop("wall_time"), second.pop("wall_time")
     first.pop("config"), second.pop("config")  # the runs compared differ in checkpoint_every alone
-    return (all(torch.equal(search_a[k], search_b[k]) if isinstance(search_a[k], torch.Tensor)
-                else search_a[k] == search_b[k] for k in search_a if k != "optimizer_state")
-            and torch.equal(first.pop("center"), second.pop("center"))
-            and torch.equal(first.pop("best_center"), second.pop("best_center")) and first == second)
+    return (
+        all(
+            torch.equal(search_a[k], search_b[k])
+            if isinstance(search_a[k], torch.Tensor)
+            else search_a[k] == search_b[k]
+            for k in search_a
+            if k != "optimizer_state"
+        )
+        and torch.equal(first.pop("center"), second.pop("center"))
+        and torch.equal(first.pop("best_center"), second.pop("best_center"))
+        and first == second
+    )
 
 
 @pytest.fixture(scope="module")
@@ -54,8 +62,9 @@ def uninterrupted(tmp_path_factory) -> Path:
 def start_and_stop(out: Path, how: signal.Signals, extra_delay: float, *options) -> tuple[int, str]:
     """Start `drrl train` in a process, wait until it has written two generations' metrics and ``extra_delay``
     seconds more, then signal it; its exit code and error output."""
-    process = subprocess.Popen(drrl("train", *SETTINGS, *options, "--out", str(out)), stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        drrl("train", *SETTINGS, *options, "--out", str(out)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     metrics = out / "metrics.csv"
     while process.poll() is None and not (metrics.exists() and len(metrics.read_text().splitlines()) > 2):
         time.sleep(0.01)
@@ -94,7 +103,7 @@ def test_sigterm_and_ctrl_c_save_the_last_whole_generation_and_say_how_to_resume
     long_run = ["--budget", "8000", "--checkpoint-every", "1000", "--out", str(out)]  # stopped long before its end
     result = CliRunner().invoke(main, ["train", *RUN, *long_run])
     written, saved = len(rows(out)), RunFolder(out).load_checkpoint()["iteration"]
-    assert result.exit_code == 1 and 2 <= saved and saved in (written - 1, written), result.output
+    assert result.exit_code == 1 and saved >= 2 and saved in (written - 1, written), result.output
     assert f"checkpoint (generation {saved}) kept" in result.output
     assert f"continue with: drrl train --resume {out}" in result.output
     setup, counters = prepare_resume(RunFolder(out))

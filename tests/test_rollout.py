@@ -177,8 +177,10 @@ def test_observation_moments_are_those_of_every_observation_acted_on_however_the
     watching = Watching(4, 2, (), activation="identity")
     whole = evaluate(watching, params, env, 1, seed=4, moments=True)
     acted = torch.stack(seen).double().view(len(seen), 6, 4)  # (step, slot): ended slots' too
-    halves = [evaluate(policy, part, make_batch_env("CartPole-v1", 3, "gymnasium"), 1, seed=4, moments=True)
-              for part in (params[:3], params[3:])]
+    halves = [
+        evaluate(policy, part, make_batch_env("CartPole-v1", 3, "gymnasium"), 1, seed=4, moments=True)
+        for part in (params[:3], params[3:])
+    ]
     joined = Evaluation.concat(halves).moments
     assert np.array_equal(joined.total, whole.moments.total) and np.array_equal(joined.count, whole.moments.count)
     assert whole.moments.count.sum() == whole.steps and len(acted) == max(whole.moments.count)

@@ -8,9 +8,18 @@ from drrl.runs import CHECKPOINT, RunFolder, _digest
 
 def test_checkpoint_round_trip_keeps_tensors_values_and_key_types(tmp_path):
     run = RunFolder.create(tmp_path / "run")
-    state = {"search": {"center": torch.arange(3.0), "rng": torch.arange(5, dtype=torch.uint8),
-                        "optimizer": {0: {"step": torch.tensor(2.0), "betas": (0.9, 0.999)}}},
-             "generation": 7, "name": "x", "flag": True, "nothing": None, "loss": float("inf")}
+    state = {
+        "search": {
+            "center": torch.arange(3.0),
+            "rng": torch.arange(5, dtype=torch.uint8),
+            "optimizer": {0: {"step": torch.tensor(2.0), "betas": (0.9, 0.999)}},
+        },
+        "generation": 7,
+        "name": "x",
+        "flag": True,
+        "nothing": None,
+        "loss": float("inf"),
+    }
     run.save_checkpoint(state)
     loaded = run.load_checkpoint()
     assert torch.equal(loaded["search"]["center"], state["search"]["center"])
@@ -66,7 +75,7 @@ def test_a_checkpoint_nested_too_deeply_is_refused_with_a_message(tmp_path):
     folder = RunFolder(tmp_path)
     state = "{}"
     for _ in range(3000):
-        state = '{"items": [["x", ' + state + ']]}'
+        state = '{"items": [["x", ' + state + "]]}"
     save_file({}, tmp_path / CHECKPOINT, metadata={"state": state, "sha256": _digest(state, {})})
     with pytest.raises(ValueError, match="nests its state too deeply"):
         folder.load_checkpoint()
@@ -74,16 +83,23 @@ def test_a_checkpoint_nested_too_deeply_is_refused_with_a_message(tmp_path):
 
 def overlapping(labels) -> bool:
     boxes = [label.get_window_extent() for label in labels if label.get_text()]
-    return any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    return any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
 
 
 @pytest.mark.parametrize("model_based", [False, True])
 def test_the_learning_curve_reads_cleanly(model_based):
     from drrl.runs import learning_curve
 
-    rows = [{"iteration" if model_based else "generation": k, "real_episodes": 2 * k, "mean_return": -300.0 + 40 * k,
-             "center_return": -250.0 + 35 * k if model_based or k % 3 == 0 else float("nan"),
-             **({"imagined_center_return": -200.0 + 20 * k} if model_based else {})} for k in range(1, 4)]
+    rows = [
+        {
+            "iteration" if model_based else "generation": k,
+            "real_episodes": 2 * k,
+            "mean_return": -300.0 + 40 * k,
+            "center_return": -250.0 + 35 * k if model_based or k % 3 == 0 else float("nan"),
+            **({"imagined_center_return": -200.0 + 20 * k} if model_based else {}),
+        }
+        for k in range(1, 4)
+    ]
     title = "drrl/CartPole-v0, linear:nobias policy, model-based pgpe (rnn 64, K = 1), a title long enough to wrap"
     figure = learning_curve(rows, title, best_step=3, eval_episodes=50)
     figure.canvas.draw()

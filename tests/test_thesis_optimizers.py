@@ -89,12 +89,15 @@ def test_adam_lambda_defaults_are_the_theses():
     assert (group["lr"], group["betas"], group["eps"], group["lambda_"]) == (1e-3, (0.9, 0.999), 1e-8, 1 - 1e-8)
 
 
-@pytest.mark.parametrize("make, message", [
-    (lambda p: NesterovAG(p, lr=0.0), "lr must be a positive"),
-    (lambda p: NesterovAG(p, lr=0.1, momentum=1.0), r"momentum must be in \[0, 1\)"),
-    (lambda p: AdamLambda(p, lambda_=1.5), r"lambda_ must be in \[0, 1\]"),
-    (lambda p: AdamLambda(p, betas=(1.0, 0.999)), "betas must be below 1"),
-])
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda p: NesterovAG(p, lr=0.0), "lr must be a positive"),
+        (lambda p: NesterovAG(p, lr=0.1, momentum=1.0), r"momentum must be in \[0, 1\)"),
+        (lambda p: AdamLambda(p, lambda_=1.5), r"lambda_ must be in \[0, 1\]"),
+        (lambda p: AdamLambda(p, betas=(1.0, 0.999)), "betas must be below 1"),
+    ],
+)
 def test_thesis_optimizers_refuse_bad_settings(make, message):
     with pytest.raises(ValueError, match=message):
         make([torch.zeros(1, requires_grad=True)])

@@ -50,8 +50,9 @@ def test_render_of_an_env_that_needs_pygame_says_what_to_install(tmp_path, monke
     from drrl.cli import main
 
     out = tmp_path / "run"
-    trained = CliRunner().invoke(main, ["train", "--env", "Pendulum-v1", "--budget", "16", "--eval-episodes", "2",
-                                        "--quiet", "--out", str(out)])
+    trained = CliRunner().invoke(
+        main, ["train", "--env", "Pendulum-v1", "--budget", "16", "--eval-episodes", "2", "--quiet", "--out", str(out)]
+    )
     assert trained.exit_code == 0, trained.output
     monkeypatch.setitem(sys.modules, "pygame", None)  # as if gymnasium[classic_control] were not installed
     result = CliRunner().invoke(main, ["render", str(out), "--out", str(tmp_path / "x.gif")])

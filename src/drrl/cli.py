@@ -10,19 +10,19 @@ import click
 from pydantic import ValidationError
 
 from drrl import __version__
+from drrl.cli_model_based import compare_command, model_based_options, pop_model_options, with_model_based
+from drrl.cli_params import INTEGER
 from drrl.config import GYMNASIUM_DEFAULTS, TrainConfig, describe_errors, load_config_file
 from drrl.envs.batch import ENGINES, make_batch_env
 from drrl.envs.registry import aliases, lookup
 from drrl.loop import Counters, Setup, derive_seed, measure, run
-from drrl.runs import RunFolder
+from drrl.model_based import ModelDiverged
 from drrl.policies import ACCEPTED_FORMS
+from drrl.rollout import BACKENDS, NonFiniteOutput
+from drrl.runs import RunFolder
 from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
-from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.train import build_policy, open_run, prepare, prepare_resume, subscribers, trained_center
-from drrl.cli_params import INTEGER
-from drrl.cli_model_based import compare_command, model_based_options, pop_model_options, with_model_based
-from drrl.model_based import ModelDiverged
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
 ERROR_LOG = "error.log"  # in the run folder: the traceback of whatever stopped the run
@@ -58,10 +58,15 @@ def main(ctx: click.Context, debug: bool) -> None:
 
 @main.command("train")
 @click.argument("env_name", required=False, metavar="[ENV]")
-@click.option("--env", "env_option",
-              help=f"Environment: {', '.join(aliases())} or any Gymnasium id (e.g. Pendulum-v1).")
-@setting("engine", click.Choice(ENGINES), "what steps the env's batch: drrl's own (native), EnvPool "
-                                         "(pip install \"drrl[envpool]\"), or Gymnasium's envs in turn")
+@click.option(
+    "--env", "env_option", help=f"Environment: {', '.join(aliases())} or any Gymnasium id (e.g. Pendulum-v1)."
+)
+@setting(
+    "engine",
+    click.Choice(ENGINES),
+    "what steps the env's batch: drrl's own (native), EnvPool "
+    '(pip install "drrl[envpool]"), or Gymnasium\'s envs in turn',
+)
 @setting("policy", str, ACCEPTED_FORMS)
 @setting("search", click.Choice(SEARCHES), "search: PGPE (the thesis), or CMA-ES with a full or diagonal covariance")
 @setting("sampler", click.Choice(SAMPLERS), "PGPE sampler")
@@ -76,35 +81,76 @@ def main(ctx: click.Context, debug: bool) -> None:
 @setting("eval_episodes", INTEGER, "episodes measuring the centre policy")
 @setting("eval_every", INTEGER, "generations between measurements")
 @setting("eval_share", float, "the most of a model-free run's env steps that measuring may take")
-@setting("observation_norm", click.BOOL, "feed the policy observations normalised by running statistics (unset: "
-                                        "on for Gymnasium's envs, model-free)")
+@setting(
+    "observation_norm",
+    click.BOOL,
+    "feed the policy observations normalised by running statistics (unset: on for Gymnasium's envs, model-free)",
+)
 @setting("seed", INTEGER, "random seed")
 @setting("checkpoint_every", INTEGER, "generations between checkpoints")
-@click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
-              help="TOML or JSON file of settings; command-line options override it.")
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="TOML or JSON file of settings; command-line options override it.",
+)
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), help="run folder  [default: runs/ENV-TIME]")
 @click.option("--quiet", is_flag=True, help="no progress bar")
-@click.option("--resume", "resume_path", type=click.Path(exists=True, file_okay=False, path_type=Path),
-              metavar="RUN", help="continue the stopped run RUN from its checkpoint, with its own settings")
-@click.option("--backend", type=click.Choice(BACKENDS), default="local", show_default=True,
-              help="where candidates are evaluated: this process, or Ray actors (pip install \"drrl[ray]\")")
+@click.option(
+    "--resume",
+    "resume_path",
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+    metavar="RUN",
+    help="continue the stopped run RUN from its checkpoint, with its own settings",
+)
+@click.option(
+    "--backend",
+    type=click.Choice(BACKENDS),
+    default="local",
+    show_default=True,
+    help='where candidates are evaluated: this process, or Ray actors (pip install "drrl[ray]")',
+)
 @click.option("--address", help="Ray cluster to join, e.g. 10.0.0.1:6379  [default: start a local Ray]")
 @click.option("--workers", type=click.IntRange(min=1), help="Ray actors  [default: one per CPU of the cluster]")
-@click.option("--tensorboard", is_flag=True, help="also log every metric for TensorBoard into RUN/tensorboard "
-                                                  "(pip install \"drrl[tensorboard]\")")
+@click.option(
+    "--tensorboard",
+    is_flag=True,
+    help='also log every metric for TensorBoard into RUN/tensorboard (pip install "drrl[tensorboard]")',
+)
 @model_based_options
-def train_command(env_name, env_option, config_file, out, quiet, resume_path, backend, address, workers,
-                  tensorboard, model_based, **options) -> None:
+def train_command(
+    env_name,
+    env_option,
+    config_file,
+    out,
+    quiet,
+    resume_path,
+    backend,
+    address,
+    workers,
+    tensorboard,
+    model_based,
+    **options,
+) -> None:
     """Train a policy on an environment: `drrl train cartpole`, model-based with `--model-based`; `drrl train
     --resume RUN` continues a stopped run."""
     if resume_path is not None:
-        given = [name for name, value in [("ENV", env_name), ("--env", env_option), ("--config", config_file),
-                                          ("--out", out), ("--model-based", model_based),
-                                          *((f"--{name.replace('_', '-')}", value) for name, value in options.items())]
-                 if value not in (None, False)]
+        given = [
+            name
+            for name, value in [
+                ("ENV", env_name),
+                ("--env", env_option),
+                ("--config", config_file),
+                ("--out", out),
+                ("--model-based", model_based),
+                *((f"--{name.replace('_', '-')}", value) for name, value in options.items()),
+            ]
+            if value not in (None, False)
+        ]
         if given:
-            raise click.UsageError(f"--resume continues RUN with the settings in its config.json; drop "
-                                   f"{', '.join(given)}")
+            raise click.UsageError(
+                f"--resume continues RUN with the settings in its config.json; drop {', '.join(given)}"
+            )
         return resume_run(resume_path, backend, address, workers, quiet, tensorboard)
     if env_name and env_option and env_name != env_option:
         raise click.UsageError(f"two environments given: {env_name!r} and --env {env_option!r}")
@@ -136,8 +182,9 @@ def train_command(env_name, env_option, config_file, out, quiet, resume_path, ba
     run_and_report(setup, folder, attached)
 
 
-def resume_run(path: Path, backend: str, address: str | None, workers: int | None, quiet: bool,
-               tensorboard: bool) -> None:
+def resume_run(
+    path: Path, backend: str, address: str | None, workers: int | None, quiet: bool, tensorboard: bool
+) -> None:
     """`drrl train --resume RUN`: the run rebuilt at its checkpoint, metrics past it dropped, then continued."""
     folder = RunFolder(path)
     try:
@@ -167,28 +214,40 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
         why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
         if not isinstance(error, KeyboardInterrupt):
             (out / ERROR_LOG).write_text(traceback.format_exc())
-        raise click.ClickException(f"{why}\nrun folder and checkpoint ({unit} {done}) kept: {out}\n"
-                                   f"continue with: drrl train --resume {out}") from None
+        raise click.ClickException(
+            f"{why}\nrun folder and checkpoint ({unit} {done}) kept: {out}\ncontinue with: drrl train --resume {out}"
+        ) from None
     except OSError as error:  # a full disk, a folder removed under the run: what was written before is kept
-        raise click.ClickException(f"cannot write {error.filename or 'to the run folder'}: {error.strerror or error}; "
-                                   f"{out} keeps what was written before; free space, then: drrl train --resume "
-                                   f"{out}") from None
+        raise click.ClickException(
+            f"cannot write {error.filename or 'to the run folder'}: {error.strerror or error}; "
+            f"{out} keeps what was written before; free space, then: drrl train --resume "
+            f"{out}"
+        ) from None
     except Exception:  # not a user's mistake: the traceback shows, and the run folder keeps it
         (out / ERROR_LOG).write_text(traceback.format_exc())
         raise
-    imagined = (f" ({counters.imagined_episodes} imagined episodes, {counters.imagined_steps} imagined steps apart)"
-                if counters.imagined_episodes else "")
-    click.echo(f"done: {counters.iteration} {unit}s, {counters.real_episodes} real episodes, "
-               f"{counters.real_steps} real steps{imagined}; centre policy's return "
-               f"{counters.rows[-1]['center_return']:.1f} (best {counters.best_center_return:.1f}, {unit} "
-               f"{counters.best_iteration})")
+    imagined = (
+        f" ({counters.imagined_episodes} imagined episodes, {counters.imagined_steps} imagined steps apart)"
+        if counters.imagined_episodes
+        else ""
+    )
+    click.echo(
+        f"done: {counters.iteration} {unit}s, {counters.real_episodes} real episodes, "
+        f"{counters.real_steps} real steps{imagined}; centre policy's return "
+        f"{counters.rows[-1]['center_return']:.1f} (best {counters.best_center_return:.1f}, {unit} "
+        f"{counters.best_iteration})"
+    )
     suggested = setup.entry.suggested
     if setup.entry.criteria() and not counters.best_center_criteria:
         options = " ".join(f"--{name.replace('_', '-')} {value}" for name, value in suggested.items())
-        advice = (f"settings that suit it: {options}" if suggested else
-                  "try a larger --budget, more --episodes-per-candidate, another --sigma-init or --policy mlp:32")
-        click.echo(f"the centre met none of {setup.entry.env_id}'s criteria ({', '.join(setup.entry.criteria())}); "
-                   f"{advice}")
+        advice = (
+            f"settings that suit it: {options}"
+            if suggested
+            else "try a larger --budget, more --episodes-per-candidate, another --sigma-init or --policy mlp:32"
+        )
+        click.echo(
+            f"the centre met none of {setup.entry.env_id}'s criteria ({', '.join(setup.entry.criteria())}); {advice}"
+        )
     click.echo(f"run folder: {out} (metrics.csv, learning_curve.png, checkpoint.safetensors)")
     click.echo(f"next: drrl eval {out}")
 
@@ -222,8 +281,10 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
     result = measure(policy, center, env, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
     env.close()
     returns = result.episode_returns.flatten().numpy()
-    click.echo(f"{entry.env_id}, {config.policy} policy, {which}, {episodes} episodes: return "
-               f"{returns.mean():.1f} ± {returns.std():.1f} (min {returns.min():.1f}, max {returns.max():.1f})")
+    click.echo(
+        f"{entry.env_id}, {config.policy} policy, {which}, {episodes} episodes: return "
+        f"{returns.mean():.1f} ± {returns.std():.1f} (min {returns.min():.1f}, max {returns.max():.1f})"
+    )
     for name, ok in entry.judge(result.episode_returns, result.terminated).items():
         click.echo(f"{name.replace('_', '-') + ':':14}{'yes' if ok else 'no'}")
     if entry.explain is not None:
@@ -232,27 +293,42 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
 
 @main.command("render")
 @click.argument("run_path", metavar="RUN", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=Path("episode.gif"),
-              show_default=True, help="video file: .gif, or .mp4 (needs drrl[render])")
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=Path("episode.gif"),
+    show_default=True,
+    help="video file: .gif, or .mp4 (needs drrl[render])",
+)
 @click.option("--seed", type=INTEGER, default=0, show_default=True, help="the episode's reset seed")
 @click.option("--final", is_flag=True, help="the last centre policy instead of the best measured one")
 @click.option("--fps", type=click.IntRange(min=1), default=25, show_default=True, help="video frames per second")
 @click.option("--max-steps", type=click.IntRange(min=1), help="stop the episode after this many steps")
 @click.option("--shadows", is_flag=True, help="Baxter: MuJoCo's shadows and reflections (about 5× slower)")
-def render_command(run_path: Path, out: Path, seed: int, final: bool, fps: int, max_steps: int | None,
-                   shadows: bool) -> None:
+def render_command(
+    run_path: Path, out: Path, seed: int, final: bool, fps: int, max_steps: int | None, shadows: bool
+) -> None:
     """Record one episode of a trained centre policy as a video, headless, e.g. `drrl render RUN --out reach.mp4`."""
     from drrl.video import render_run  # imports Pillow and, for Baxter, MuJoCo's renderer only when asked
 
     try:
-        recording = render_run(run_path, out, final=final, seed=seed, fps=fps, max_steps=max_steps,
-                               **({"shadows": True} if shadows else {}))
+        recording = render_run(
+            run_path,
+            out,
+            final=final,
+            seed=seed,
+            fps=fps,
+            max_steps=max_steps,
+            **({"shadows": True} if shadows else {}),
+        )
     except (ValueError, ImportError, RuntimeError) as error:  # a bad run folder or format, no MP4 writer or GL
         raise click.ClickException(str(error)) from None
     distance = recording.info.get("distance")
-    click.echo(f"wrote {out}: {len(recording.frames)} frames at {recording.fps:g} fps; {recording.steps} steps, "
-               f"return {recording.episode_return:.1f}"
-               + ("" if distance is None else f", final end-point distance {float(distance):.3f} m"))
+    click.echo(
+        f"wrote {out}: {len(recording.frames)} frames at {recording.fps:g} fps; {recording.steps} steps, "
+        f"return {recording.episode_return:.1f}"
+        + ("" if distance is None else f", final end-point distance {float(distance):.3f} m")
+    )
 
 
 main.add_command(compare_command)

@@ -18,8 +18,13 @@ from drrl.models.recurrent import MODEL_KINDS
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
 # option name -> ModelBasedSettings field
-MODEL_OPTIONS = {"model_kind": "model_kind", "model_hidden": "hidden", "overshoot": "overshoot",
-                 "ensemble": "ensemble_size", "generations": "generations"}
+MODEL_OPTIONS = {
+    "model_kind": "model_kind",
+    "model_hidden": "hidden",
+    "overshoot": "overshoot",
+    "ensemble": "ensemble_size",
+    "generations": "generations",
+}
 
 
 def _default(field: str):
@@ -29,19 +34,32 @@ def _default(field: str):
 def model_based_options(command):
     """``--model-based`` and the options of the world model, for ``drrl train``."""
     options = [
-        click.option("--model-based", is_flag=True, help="Model-based PGPE: fit a recurrent world model to real "
-                     f"episodes and search in it. Its defaults: {MODEL_BASED_DEFAULTS}; popsize and "
-                     "episodes-per-candidate then count imagined episodes."),
-        click.option("--model-kind", type=click.Choice(MODEL_KINDS),
-                     help=f"world model: state-space RNN (3.4) or LSTM (3.5.2)  [default: {_default('model_kind')}]"),
-        click.option("--model-hidden", metavar="W[,W...]",
-                     help="widths of the world model's stacked layers  [default: 64]"),
-        click.option("--overshoot", type=INTEGER,
-                     help=f"overshooting steps (3.3.2)  [default: {_default('overshoot')}]"),
-        click.option("--ensemble", type=INTEGER, help=f"world models in the ensemble  [default: "
-                                                  f"{_default('ensemble_size')}]"),
-        click.option("--generations", type=INTEGER, help=f"most PGPE generations in the model per iteration  "
-                                                      f"[default: {_default('generations')}]"),
+        click.option(
+            "--model-based",
+            is_flag=True,
+            help="Model-based PGPE: fit a recurrent world model to real "
+            f"episodes and search in it. Its defaults: {MODEL_BASED_DEFAULTS}; popsize and "
+            "episodes-per-candidate then count imagined episodes.",
+        ),
+        click.option(
+            "--model-kind",
+            type=click.Choice(MODEL_KINDS),
+            help=f"world model: state-space RNN (3.4) or LSTM (3.5.2)  [default: {_default('model_kind')}]",
+        ),
+        click.option(
+            "--model-hidden", metavar="W[,W...]", help="widths of the world model's stacked layers  [default: 64]"
+        ),
+        click.option(
+            "--overshoot", type=INTEGER, help=f"overshooting steps (3.3.2)  [default: {_default('overshoot')}]"
+        ),
+        click.option(
+            "--ensemble", type=INTEGER, help=f"world models in the ensemble  [default: {_default('ensemble_size')}]"
+        ),
+        click.option(
+            "--generations",
+            type=INTEGER,
+            help=f"most PGPE generations in the model per iteration  [default: {_default('generations')}]",
+        ),
     ]
     for option in reversed(options):
         command = option(command)
@@ -56,8 +74,9 @@ def pop_model_options(options: dict) -> dict:
         try:
             given["hidden"] = tuple(int(width) for width in given["hidden"].split(","))
         except ValueError:
-            raise click.UsageError(f"--model-hidden: {given['hidden']!r} is not a comma-separated list of layer "
-                                   f"widths such as 64 or 64,64") from None
+            raise click.UsageError(
+                f"--model-hidden: {given['hidden']!r} is not a comma-separated list of layer widths such as 64 or 64,64"
+            ) from None
     return given
 
 
@@ -70,8 +89,9 @@ def with_model_based(settings: dict, model_based: bool, model_options: dict) -> 
     model_based = model_based or table is not None
     if not model_based:
         if model_options:
-            names = ", ".join(f"--{name.replace('_', '-')}" for name in MODEL_OPTIONS
-                              if MODEL_OPTIONS[name] in model_options)
+            names = ", ".join(
+                f"--{name.replace('_', '-')}" for name in MODEL_OPTIONS if MODEL_OPTIONS[name] in model_options
+            )
             raise click.UsageError(f"{names} only apply to a model-based run; add --model-based")
         return settings
     return {**settings, "model_based": {**(settings.get("model_based") or {}), **model_options}}
@@ -80,16 +100,40 @@ def with_model_based(settings: dict, model_based: bool, model_options: dict) -> 
 @click.command("compare")
 @click.option("--env", default="cartpole", show_default=True, help="Environment to compare the methods on.")
 @click.option("--seeds", type=click.IntRange(min=1), default=3, show_default=True, help="seeds per method")
-@click.option("--budget", type=click.IntRange(min=1), default=300, show_default=True,
-              help="real training episodes of each model-free run")
-@click.option("--model-based-budget", type=click.IntRange(min=1), default=20, show_default=True,
-              help="real training episodes of each model-based run")
-@click.option("--method", "methods", type=click.Choice(METHODS), multiple=True,
-              help="methods to run (repeat the option)  [default: all four]")
-@click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
-              help="TOML or JSON file of settings for every run (its model_based table for the model-based one)")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("compare"),
-              show_default=True, help="folder for compare.png and compare.csv")
+@click.option(
+    "--budget",
+    type=click.IntRange(min=1),
+    default=300,
+    show_default=True,
+    help="real training episodes of each model-free run",
+)
+@click.option(
+    "--model-based-budget",
+    type=click.IntRange(min=1),
+    default=20,
+    show_default=True,
+    help="real training episodes of each model-based run",
+)
+@click.option(
+    "--method",
+    "methods",
+    type=click.Choice(METHODS),
+    multiple=True,
+    help="methods to run (repeat the option)  [default: all four]",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="TOML or JSON file of settings for every run (its model_based table for the model-based one)",
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("compare"),
+    show_default=True,
+    help="folder for compare.png and compare.csv",
+)
 def compare_command(env, seeds, budget, model_based_budget, methods, config_file, out) -> None:
     """Figure 5.2 extended: the centre's average return against real training episodes for REINFORCE, SyS,
     super-symmetric and model-based PGPE, mean and ±1 s.e. band over seeds, as one PNG and one CSV."""
@@ -106,8 +150,10 @@ def compare_command(env, seeds, budget, model_based_budget, methods, config_file
     start = time.perf_counter()
 
     def progress(method, seed, run):
-        click.echo(f"{method}, seed {seed}: centre's return {run[-1][1]:.1f} after {run[-1][0]} real episodes "
-                   f"({time.perf_counter() - start:.0f} s)")
+        click.echo(
+            f"{method}, seed {seed}: centre's return {run[-1][1]:.1f} after {run[-1][0]} real episodes "
+            f"({time.perf_counter() - start:.0f} s)"
+        )
 
     try:
         compare(out, seeds, budget, model_based_budget, settings, methods or METHODS, progress)

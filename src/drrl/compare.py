@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from drrl.config import TrainConfig
 from drrl.train import train
 
@@ -50,8 +51,9 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
     """
     base = {key: value for key, value in settings.items() if key != "model_based"}
     if method == MODEL_BASED:
-        return TrainConfig.model_validate({**base, "budget": budget, "seed": seed,
-                                           "model_based": settings.get("model_based") or {}})
+        return TrainConfig.model_validate(
+            {**base, "budget": budget, "seed": seed, "model_based": settings.get("model_based") or {}}
+        )
     merged = {"eval_share": 1.0, **base, "sampler": MODEL_FREE[method], "budget": budget, "seed": seed}
     if merged["sampler"] == "supersymmetric" and merged.get("popsize", 8) % 4:
         merged["popsize"] = 8
@@ -81,8 +83,15 @@ def _held(run: list[tuple[int, float]], grid: np.ndarray) -> np.ndarray:
     return returns[np.searchsorted(episodes, grid, side="right") - 1]
 
 
-def compare(out: Path, seeds: int = 3, budget: int = 300, model_based_budget: int = 20,
-            settings: dict | None = None, methods: tuple[str, ...] = METHODS, progress=None) -> list[Curve]:
+def compare(
+    out: Path,
+    seeds: int = 3,
+    budget: int = 300,
+    model_based_budget: int = 20,
+    settings: dict | None = None,
+    methods: tuple[str, ...] = METHODS,
+    progress=None,
+) -> list[Curve]:
     """Run every method for ``seeds`` seeds; write ``out``/compare.csv and ``out``/compare.png."""
     settings = settings or {}
     curves = []
@@ -106,7 +115,7 @@ def write_csv(curves: list[Curve], path: Path) -> None:
         writer = csv.writer(handle)
         writer.writerow(["method", "real_episodes", "mean_return", "se_low", "se_high", "seeds"])
         for curve in curves:
-            for row in zip(curve.real_episodes, curve.mean, curve.low, curve.high):
+            for row in zip(curve.real_episodes, curve.mean, curve.low, curve.high, strict=True):
                 writer.writerow([curve.method, int(row[0]), *(round(float(v), 3) for v in row[1:]), curve.seeds])
 
 
@@ -130,10 +139,13 @@ def comparison_figure(curves: list[Curve], env: str, eval_episodes: int):
 
     figure, axes = plt.subplots(figsize=(7.0, 4.4), layout="constrained")
     for curve in curves:
-        line, = axes.step(curve.real_episodes, curve.mean, where="post", label=f"{curve.method} ({curve.seeds} "
-                                                                               f"seed{'s' * (curve.seeds > 1)})")
-        axes.fill_between(curve.real_episodes, curve.low, curve.high, step="post", alpha=0.2,
-                          color=line.get_color())
+        (line,) = axes.step(
+            curve.real_episodes,
+            curve.mean,
+            where="post",
+            label=f"{curve.method} ({curve.seeds} seed{'s' * (curve.seeds > 1)})",
+        )
+        axes.fill_between(curve.real_episodes, curve.low, curve.high, step="post", alpha=0.2, color=line.get_color())
     axes.set_xscale("log")
     axes.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
     axes.xaxis.set_major_formatter(ScalarFormatter())

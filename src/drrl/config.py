@@ -21,10 +21,21 @@ MAX_CONFIG_BYTES = 1024 * 1024
 # [-1, 1] to the env's bounds, so one σ suits envs of any scale. A linear policy with a bias (the normalisation's
 # shift folds into it), small steps and centred ranks, as ARS (Mania et al. 2018) searched MuJoCo's tasks; chosen on
 # Acrobot, MountainCarContinuous, InvertedDoublePendulum, Reacher and Hopper (BENCHMARKS.md).
-GYMNASIUM_DEFAULTS = {"policy": "linear", "popsize": 16, "sigma_init": 0.025, "center_lr": 0.02,
-                      "fitness_shaping": "centered_ranks", "budget": 3200}
-CHOICES = {"search": SEARCHES, "sampler": SAMPLERS, "optimizer": OPTIMIZERS,
-           "fitness_shaping": FITNESS_SHAPINGS, "engine": ENGINES}  # string settings
+GYMNASIUM_DEFAULTS = {
+    "policy": "linear",
+    "popsize": 16,
+    "sigma_init": 0.025,
+    "center_lr": 0.02,
+    "fitness_shaping": "centered_ranks",
+    "budget": 3200,
+}
+CHOICES = {
+    "search": SEARCHES,
+    "sampler": SAMPLERS,
+    "optimizer": OPTIMIZERS,
+    "fitness_shaping": FITNESS_SHAPINGS,
+    "engine": ENGINES,
+}  # string settings
 
 
 class TrainConfig(BaseModel):
@@ -58,26 +69,36 @@ class TrainConfig(BaseModel):
     sigma_lr: float = Field(0.01, gt=0, le=1e6)
     baseline_decay: float = Field(0.1, ge=0, lt=1)
     max_sigma_change: float = Field(0.2, gt=0, lt=1)
-    eval_episodes: int = Field(50, ge=1, le=100_000, description="episodes that measure the centre policy "
-                                                                   "(not training)")
+    eval_episodes: int = Field(
+        50, ge=1, le=100_000, description="episodes that measure the centre policy (not training)"
+    )
     eval_every: int = Field(1, ge=1, le=10**9, description="generations between measurements of the centre policy")
-    eval_share: float = Field(0.25, gt=0, le=1, description="the most of a model-free run's env steps that "
-                                                            "measuring may take (1: measure every eval_every)")
+    eval_share: float = Field(
+        0.25,
+        gt=0,
+        le=1,
+        description="the most of a model-free run's env steps that measuring may take (1: measure every eval_every)",
+    )
     checkpoint_every: int = Field(10, ge=1, le=10**9, description="generations between checkpoints")
     max_steps: int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
-    observation_norm: bool | None = Field(None, description="feed the policy observations normalised by the mean and "
-                                                            "std of all training observations so far (model-free; "
-                                                            "unset: on for envs other than drrl's own)")
+    observation_norm: bool | None = Field(
+        None,
+        description="feed the policy observations normalised by the mean and "
+        "std of all training observations so far (model-free; "
+        "unset: on for envs other than drrl's own)",
+    )
     seed: int = Field(0, ge=0, le=2**32 - 1)
     device: str = "cpu"
-    engine: str = Field("auto", description="what steps the env's batch (drrl.envs.batch); a run folder's config "
-                                            "names the one its run used")
+    engine: str = Field(
+        "auto",
+        description="what steps the env's batch (drrl.envs.batch); a run folder's config names the one its run used",
+    )
     model_based: ModelBasedSettings | None = Field(None, description="set: model-based PGPE (drrl.model_based)")
 
     @field_validator(*CHOICES)
     @classmethod
     def _known_choice(cls, value: str, info: ValidationInfo) -> str:
-        return one_of(value, CHOICES[info.field_name])
+        return one_of(value, CHOICES[str(info.field_name)])
 
     @field_validator("device")
     @classmethod
@@ -113,11 +134,14 @@ class TrainConfig(BaseModel):
         if pgpe and self.sampler == "supersymmetric" and self.popsize % 4:
             raise ValueError(f"supersymmetric sampling needs a popsize divisible by 4, got {self.popsize}")
         if self.model_based is not None and self.observation_norm:
-            raise ValueError("observation_norm is for model-free runs; a model-based run's model normalises its own "
-                             "inputs")
+            raise ValueError(
+                "observation_norm is for model-free runs; a model-based run's model normalises its own inputs"
+            )
         if self.model_based is None and self.budget < self.episodes_per_generation:
-            raise ValueError(f"budget of {self.budget} real episodes is smaller than one generation "
-                             f"({self.popsize} candidates × {self.episodes_per_candidate} episode(s) each)")
+            raise ValueError(
+                f"budget of {self.budget} real episodes is smaller than one generation "
+                f"({self.popsize} candidates × {self.episodes_per_candidate} episode(s) each)"
+            )
         return self
 
     @property
@@ -134,8 +158,9 @@ def load_config_file(path: Path) -> dict:
     kind = "JSON" if path.suffix == ".json" else "TOML"
     try:
         if path.stat().st_size > MAX_CONFIG_BYTES:
-            raise ValueError(f"config file {path} is over {MAX_CONFIG_BYTES // 1024} KiB; a config holds a few "
-                             f"settings")
+            raise ValueError(
+                f"config file {path} is over {MAX_CONFIG_BYTES // 1024} KiB; a config holds a few settings"
+            )
         text = path.read_text(encoding="utf-8-sig")  # a byte-order mark is allowed
     except OSError as error:
         raise ValueError(f"cannot read config file {path}: {error.strerror}") from None
@@ -148,8 +173,9 @@ def load_config_file(path: Path) -> dict:
     except RecursionError:
         raise ValueError(f"config file {path} nests its tables too deeply to be a drrl config") from None
     if not isinstance(settings, dict):
-        raise ValueError(f"config file {path} must hold an object of settings (name: value), not a "
-                         f"{type(settings).__name__}")
+        raise ValueError(
+            f"config file {path} must hold an object of settings (name: value), not a {type(settings).__name__}"
+        )
     return settings
 
 
@@ -169,11 +195,10 @@ def describe_errors(error: ValidationError) -> str:
 
 def _unknown_setting(name: str, known: list[str]) -> str:
     close = difflib.get_close_matches(name, known, n=1)
-    return (f"not a setting{f' (did you mean {close[0]}?)' if close else ''}; the settings are: "
-            f"{', '.join(known)}")
+    return f"not a setting{f' (did you mean {close[0]}?)' if close else ''}; the settings are: {', '.join(known)}"
 
 
 def short_repr(value, limit: int = 80) -> str:
     """``repr(value)``, cut to ``limit`` characters for a one-line message."""
     text = repr(value)
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -21,7 +21,7 @@ import signal
 import threading
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -36,8 +36,18 @@ from drrl.rollout import Backend, Evaluation, evaluate
 from drrl.search.base import Search
 
 TRAINING, MEASURING = 0, 1  # independent random streams for training and measuring episodes
-COUNTS = ("iteration", "generations", "real_episodes", "real_steps", "imagined_episodes", "imagined_steps",
-          "eval_episodes", "eval_steps", "best_iteration", "best_center_criteria")
+COUNTS = (
+    "iteration",
+    "generations",
+    "real_episodes",
+    "real_steps",
+    "imagined_episodes",
+    "imagined_steps",
+    "eval_episodes",
+    "eval_steps",
+    "best_iteration",
+    "best_center_criteria",
+)
 
 
 def derive_seed(seed: int, step: int, stream: int) -> int:
@@ -45,9 +55,9 @@ def derive_seed(seed: int, step: int, stream: int) -> int:
     return int(np.random.SeedSequence([seed, step, stream]).generate_state(1)[0])
 
 
-def run_generation(search: Search, backend: Backend, seed: int,
-                   deploy: Callable[[torch.Tensor], torch.Tensor] | None = None
-                   ) -> tuple[Evaluation, dict[str, float]]:
+def run_generation(
+    search: Search, backend: Backend, seed: int, deploy: Callable[[torch.Tensor], torch.Tensor] | None = None
+) -> tuple[Evaluation, dict[str, float]]:
     """One generation: ask the search for candidates, evaluate them on the backend (as ``deploy`` turns them into
     the env's policies, if given), tell the search their mean returns."""
     candidates = search.ask()
@@ -112,13 +122,13 @@ class World(ABC):
         """The world's own state between steps (a model, its data), as copies."""
         return {}
 
-    def load_state_dict(self, state: dict) -> None:
+    def load_state_dict(self, state: dict) -> None:  # noqa: B027 (optional: a world without state keeps nothing)
         """Restore :meth:`state_dict`."""
 
     def title(self, setup: Setup) -> str:
         return f"{setup.entry.env_id}, {setup.config.policy} policy, {setup.config.search}"
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (optional: a world that holds nothing releases nothing)
         """Release what the world holds (its backend)."""
 
 
@@ -155,7 +165,7 @@ class Subscriber:
         """When the run ends for any reason, with the last whole step's state."""
 
 
-def run(setup: Setup, subscribers: list[Subscriber] = (), counters: Counters | None = None) -> Counters:
+def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters | None = None) -> Counters:
     """Step ``setup.world`` to the end of its budget; ``counters`` (from :func:`restore`) continue a run."""
     counters = Counters() if counters is None else counters
     snapshot = checkpoint_state(setup, counters)
@@ -195,8 +205,13 @@ def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
     if not setup.world.measure_due(iteration, counters):
         return dict.fromkeys(("center_return", *setup.entry.criteria()), float("nan"))
     center = deployed_center(setup)
-    measured = measure(setup.policy, center, setup.eval_env, setup.config.max_steps,
-                       derive_seed(setup.config.seed, iteration, MEASURING))
+    measured = measure(
+        setup.policy,
+        center,
+        setup.eval_env,
+        setup.config.max_steps,
+        derive_seed(setup.config.seed, iteration, MEASURING),
+    )
     counters.eval_episodes += measured.episodes
     counters.eval_steps += measured.steps
     center_return = float(measured.returns[0])
@@ -242,20 +257,41 @@ def checkpoint_state(setup: Setup, counters: Counters) -> dict:
     """The run's state between steps, for ``RunFolder.save_checkpoint`` and :func:`restore`."""
     search = setup.search
     best = search.center if counters.best_center is None else counters.best_center
-    return {"kind": setup.world.kind, "unit": setup.world.unit, "config": setup.config.model_dump(mode="json"),
-            "search": search.state_dict(), "center": deployed_center(setup).detach().cpu(),
-            "env_id": setup.entry.env_id, "best_center": best.detach().cpu(),
-            "best_center_return": counters.best_center_return, "num_params": setup.policy.num_params,
-            "wall_time": counters.wall_time, **{key: getattr(counters, key) for key in COUNTS},
-            "world": setup.world.state_dict()}
+    return {
+        "kind": setup.world.kind,
+        "unit": setup.world.unit,
+        "config": setup.config.model_dump(mode="json"),
+        "search": search.state_dict(),
+        "center": deployed_center(setup).detach().cpu(),
+        "env_id": setup.entry.env_id,
+        "best_center": best.detach().cpu(),
+        "best_center_return": counters.best_center_return,
+        "num_params": setup.policy.num_params,
+        "wall_time": counters.wall_time,
+        **{key: getattr(counters, key) for key in COUNTS},
+        "world": setup.world.state_dict(),
+    }
 
 
 def check_checkpoint(checkpoint: dict, kind: str) -> None:
     """Refuse a checkpoint this version cannot resume as a ``kind`` run, saying what is wrong with it."""
     if checkpoint.get("kind") != kind:
         raise ValueError(f"checkpoint is of kind {checkpoint.get('kind')!r} but the run's config is {kind!r}")
-    missing = [key for key in ("search", "center", "best_center", "best_center_return", "env_id", "num_params",
-                               "wall_time", "world", *COUNTS) if key not in checkpoint]
+    missing = [
+        key
+        for key in (
+            "search",
+            "center",
+            "best_center",
+            "best_center_return",
+            "env_id",
+            "num_params",
+            "wall_time",
+            "world",
+            *COUNTS,
+        )
+        if key not in checkpoint
+    ]
     if missing:
         raise ValueError(f"checkpoint lacks {', '.join(missing)}")
     for key in COUNTS:
@@ -267,8 +303,12 @@ def check_checkpoint(checkpoint: dict, kind: str) -> None:
         raise ValueError(f"checkpoint's num_params is {size!r}; it must be a whole number >= 1")
     for key in ("center", "best_center"):
         value = checkpoint[key]
-        if (not isinstance(value, torch.Tensor) or value.dtype != torch.float32 or value.shape != (size,)
-                or not bool(torch.isfinite(value).all())):
+        if (
+            not isinstance(value, torch.Tensor)
+            or value.dtype != torch.float32
+            or value.shape != (size,)
+            or not bool(torch.isfinite(value).all())
+        ):
             raise ValueError(f"checkpoint's {key} must be {size} finite float32 numbers (its num_params)")
 
 
@@ -284,9 +324,14 @@ def restore(setup: Setup, checkpoint: dict) -> Counters:
     except (KeyError, TypeError, AttributeError, RuntimeError) as error:
         raise ValueError(f"checkpoint's state does not fit the run's config: {error}") from None
     if setup.search.generation != checkpoint["generations"]:
-        raise ValueError(f"checkpoint's search state is at generation {setup.search.generation}, its counters at "
-                         f"{checkpoint['generations']}")
-    counters = Counters(**{key: checkpoint[key] for key in COUNTS}, wall_time=float(checkpoint["wall_time"]),
-                        best_center_return=float(checkpoint["best_center_return"]))
+        raise ValueError(
+            f"checkpoint's search state is at generation {setup.search.generation}, its counters at "
+            f"{checkpoint['generations']}"
+        )
+    counters = Counters(
+        **{key: checkpoint[key] for key in COUNTS},
+        wall_time=float(checkpoint["wall_time"]),
+        best_center_return=float(checkpoint["best_center_return"]),
+    )
     counters.best_center = checkpoint["best_center"] if counters.best_iteration else None
     return counters

@@ -60,12 +60,17 @@ class ModelBased(World):
 
     def __init__(self, config: TrainConfig, entry: EnvEntry, policy: Policy, eval_env: VectorEnv, backend: Backend):
         settings = config.model_based
+        if settings is None:
+            raise ValueError("a model-based run needs model_based settings")
         if config.budget < settings.initial_episodes:
-            raise ValueError(f"budget: {config.budget} real episodes is fewer than model_based.initial_episodes "
-                             f"({settings.initial_episodes}); raise the budget or lower initial_episodes")
+            raise ValueError(
+                f"budget: {config.budget} real episodes is fewer than model_based.initial_episodes "
+                f"({settings.initial_episodes}); raise the budget or lower initial_episodes"
+            )
         if settings.reward == "known" and entry.reward is None:
-            raise ValueError(f"model_based.reward: no closed-form reward is known for {entry.env_id!r}; use "
-                             f"'learned' or 'auto'")
+            raise ValueError(
+                f"model_based.reward: no closed-form reward is known for {entry.env_id!r}; use 'learned' or 'auto'"
+            )
         self.config, self.settings, self.policy, self.backend = config, settings, policy, backend
         self.real = RegisteredEnv(entry.env_id, config.engine)
         self.action_space = eval_env.single_action_space
@@ -96,8 +101,9 @@ class ModelBased(World):
         config, search = self.config, setup.search
         # 1. real episodes: the centre and explorers (only explorers before the model has informed μ)
         params = exploring_policies(search, self.sizes[iteration - 1], with_center=iteration > 1)
-        episodes, real = collect(self.policy, params, self.real, derive_seed(config.seed, iteration, TRAINING),
-                                 config.max_steps)
+        episodes, real = collect(
+            self.policy, params, self.real, derive_seed(config.seed, iteration, TRAINING), config.max_steps
+        )
         self.buffer.extend(episodes)
         counters.real_episodes += real.episodes
         counters.real_steps += real.steps
@@ -109,24 +115,40 @@ class ModelBased(World):
             raise ModelDiverged(f"iteration {iteration}: the world model's loss turned non-finite")
         # 3. the search inside it, from real start states
         search_start = time.perf_counter()
-        imagined = ImaginedWorld.of(self.model, self.buffer.start_observations(), self.action_space, self.horizon,
-                                    self.known_reward, self.settings.disagreement_penalty)
-        self.backend.use(Workload(self.policy, imagined, config.popsize, config.episodes_per_candidate,
-                                  config.max_steps))
+        imagined = ImaginedWorld.of(
+            self.model,
+            self.buffer.start_observations(),
+            self.action_space,
+            self.horizon,
+            self.known_reward,
+            self.settings.disagreement_penalty,
+        )
+        self.backend.use(
+            Workload(self.policy, imagined, config.popsize, config.episodes_per_candidate, config.max_steps)
+        )
         generations = self.search_in_model(search, counters, iteration)
         search_end = time.perf_counter()
         # the centre in the model (the loop measures it in reality)
         env = imagined.make(config.episodes_per_generation)
-        in_model = evaluate(self.policy, search.center[None], env, env.num_envs,
-                            seed=derive_seed(config.seed, iteration, IMAGINING))
-        return {"iteration": iteration, "real_episodes": counters.real_episodes, "real_steps": counters.real_steps,
-                "imagined_episodes": counters.imagined_episodes, "imagined_steps": counters.imagined_steps,
-                "generations": generations, "mean_return": float(real.returns.mean()),
-                "imagined_center_return": float(in_model.returns[0]), "sigma_norm": float(search.spread.norm()),
-                "overshoot": fit_now.overshoot,
-                "model_loss": float(np.mean([report.valid_loss for report in reports])),
-                "fit_updates": sum(report.updates for report in reports),
-                "fit_time": round(search_start - fit_start, 3), "search_time": round(search_end - search_start, 3)}
+        in_model = evaluate(
+            self.policy, search.center[None], env, env.num_envs, seed=derive_seed(config.seed, iteration, IMAGINING)
+        )
+        return {
+            "iteration": iteration,
+            "real_episodes": counters.real_episodes,
+            "real_steps": counters.real_steps,
+            "imagined_episodes": counters.imagined_episodes,
+            "imagined_steps": counters.imagined_steps,
+            "generations": generations,
+            "mean_return": float(real.returns.mean()),
+            "imagined_center_return": float(in_model.returns[0]),
+            "sigma_norm": float(search.spread.norm()),
+            "overshoot": fit_now.overshoot,
+            "model_loss": float(np.mean([report.valid_loss for report in reports])),
+            "fit_updates": sum(report.updates for report in reports),
+            "fit_time": round(search_start - fit_start, 3),
+            "search_time": round(search_end - search_start, 3),
+        }
 
     def search_in_model(self, search: Search, counters: Counters, iteration: int) -> int:
         """Generations on imagined episodes, counted in ``counters``; returns how many ran.
@@ -139,10 +161,12 @@ class ModelBased(World):
         for generation in range(1, self.settings.generations + 1):
             seed = derive_seed(self.config.seed, iteration * 1_000_000 + generation, IMAGINING)
             try:
-                evaluation, metrics = run_generation(search, self.backend, seed)
+                evaluation, _metrics = run_generation(search, self.backend, seed)
             except NonFiniteOutput as error:
-                raise ModelDiverged(f"iteration {iteration}, generation {generation}: the model imagined {error}; "
-                                    f"stopped before updating the search") from None
+                raise ModelDiverged(
+                    f"iteration {iteration}, generation {generation}: the model imagined {error}; "
+                    f"stopped before updating the search"
+                ) from None
             counters.generations += 1
             counters.imagined_episodes += evaluation.episodes
             counters.imagined_steps += evaluation.steps
@@ -162,8 +186,10 @@ class ModelBased(World):
 
     def title(self, setup: Setup) -> str:
         settings = self.settings
-        return (f"{setup.entry.env_id}, {self.config.policy} policy, model-based {self.config.search} "
-                f"({settings.model_kind} {'×'.join(map(str, settings.hidden))}, K = {settings.ensemble_size})")
+        return (
+            f"{setup.entry.env_id}, {self.config.policy} policy, model-based {self.config.search} "
+            f"({settings.model_kind} {'×'.join(map(str, settings.hidden))}, K = {settings.ensemble_size})"
+        )
 
     def close(self) -> None:
         self.backend.close()
@@ -178,11 +204,17 @@ def iteration_sizes(budget: int, settings: ModelBasedSettings) -> list[int]:
 
 def build_model(settings: ModelBasedSettings, env: VectorEnv, seed: int) -> WorldModel:
     """The ensemble of world models ``settings`` describes, for ``env``'s observation and action sizes."""
-    observation_size = env.single_observation_space.shape[0]
+    observation_size = int(np.prod(env.single_observation_space.shape or ()))
     with torch.random.fork_rng():  # the members' initial weights, without touching the global generator
         torch.manual_seed(seed)
-        return WorldModel(observation_size, action_size(env.single_action_space), settings.hidden, settings.model_kind,
-                          settings.future_inputs, members=settings.ensemble_size)
+        return WorldModel(
+            observation_size,
+            action_size(env.single_action_space),
+            settings.hidden,
+            settings.model_kind,
+            settings.future_inputs,
+            members=settings.ensemble_size,
+        )
 
 
 def episode_horizon(env_id: str, env: VectorEnv) -> int:
@@ -207,8 +239,9 @@ def exploring_policies(search: Search, count: int, with_center: bool) -> torch.T
     return candidates[:count]
 
 
-def collect(policy: Policy, params: torch.Tensor, source: RegisteredEnv, seed: int, max_steps: int | None
-            ) -> tuple[list[Episode], Evaluation]:
+def collect(
+    policy: Policy, params: torch.Tensor, source: RegisteredEnv, seed: int, max_steps: int | None
+) -> tuple[list[Episode], Evaluation]:
     """One recorded real episode per row of ``params``, and the exact steps and episodes spent.
 
     The env is seeded here so that every episode starts from its own state: ``evaluate``'s seeding gives every

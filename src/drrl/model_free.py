@@ -44,18 +44,24 @@ class ModelFree(World):
 
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         try:
-            result, metrics = run_generation(setup.search, self.backend,
-                                             derive_seed(self.config.seed, iteration, TRAINING), self.deployed)
+            result, metrics = run_generation(
+                setup.search, self.backend, derive_seed(self.config.seed, iteration, TRAINING), self.deployed
+            )
         except NonFiniteOutput as error:
             raise NonFiniteOutput(f"generation {iteration}: {error}; stopped before updating the search") from None
-        if self.moments is not None:
+        if self.moments is not None and result.moments is not None:
             self.moments = self.moments.plus(result.moments)
         counters.generations += 1
         counters.real_episodes += result.episodes
         counters.real_steps += result.steps
-        return {"generation": iteration, "real_episodes": counters.real_episodes, "real_steps": counters.real_steps,
-                "mean_return": float(result.returns.mean()), "best_return": float(result.returns.max()),
-                "sigma_norm": metrics["sigma_norm"]}
+        return {
+            "generation": iteration,
+            "real_episodes": counters.real_episodes,
+            "real_steps": counters.real_steps,
+            "mean_return": float(result.returns.mean()),
+            "best_return": float(result.returns.max()),
+            "sigma_norm": metrics["sigma_norm"],
+        }
 
     def measure_due(self, iteration: int, counters: Counters) -> bool:
         """After the last generation; else every ``eval_every`` generations if measuring now keeps the steps spent
@@ -67,8 +73,11 @@ class ModelFree(World):
         if iteration % config.eval_every:
             return False
         measurements = counters.eval_episodes // config.eval_episodes
-        expected = (counters.eval_steps / measurements if measurements
-                    else config.eval_episodes * counters.real_steps / counters.real_episodes)
+        expected = (
+            counters.eval_steps / measurements
+            if measurements
+            else config.eval_episodes * counters.real_steps / counters.real_episodes
+        )
         spent = counters.eval_steps + expected
         return spent <= config.eval_share * (counters.real_steps + spent)
 

@@ -26,7 +26,7 @@ from safetensors.torch import save_file
 try:
     import fcntl
 except ImportError:  # not on Windows: run folders are then not held
-    fcntl = None
+    fcntl = None  # type: ignore[assignment]
 
 from drrl.config import TrainConfig, describe_errors, short_repr
 
@@ -74,8 +74,10 @@ class RunFolder:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             os.close(handle)
-            raise ValueError(f"run folder {self.path} is in use by another drrl process (training or resuming "
-                             f"it); wait for it to end, or choose another --out") from None
+            raise ValueError(
+                f"run folder {self.path} is in use by another drrl process (training or resuming "
+                f"it); wait for it to end, or choose another --out"
+            ) from None
         self._hold = weakref.finalize(self, os.close, handle)
         return self
 
@@ -125,12 +127,14 @@ class RunFolder:
         except (OSError, ValueError, csv.Error) as error:
             raise ValueError(f"{file} is unreadable, so the run cannot be resumed exactly: {error}") from None
         if [int(row[0]) for row in numbers] != list(range(1, generations + 1)):
-            raise ValueError(f"{file} holds {len(whole)} whole rows before the checkpoint's generation {generations}; "
-                             f"it needs one per generation to resume exactly")
+            raise ValueError(
+                f"{file} holds {len(whole)} whole rows before the checkpoint's generation {generations}; "
+                f"it needs one per generation to resume exactly"
+            )
         text = io.StringIO()
         csv.writer(text).writerows([header, *kept])
         _write_atomically(file, text.getvalue())
-        return [dict(zip(header, row)) for row in numbers]
+        return [dict(zip(header, row, strict=True)) for row in numbers]
 
     def save_checkpoint(self, state: dict[str, Any]) -> None:
         tensors: dict[str, torch.Tensor] = {}
@@ -151,14 +155,20 @@ class RunFolder:
         config, checkpoint = self.read_config(), self.load_checkpoint()
         recorded = checkpoint.get("config")
         if not isinstance(recorded, dict):
-            raise ValueError(f"checkpoint in {self.path} does not record the settings it was trained with (written "
-                             f"by an older drrl?), so it cannot be matched to its config.json")
+            raise ValueError(
+                f"checkpoint in {self.path} does not record the settings it was trained with (written "
+                f"by an older drrl?), so it cannot be matched to its config.json"
+            )
         changed = _differences(config.model_dump(mode="json"), recorded)
         if changed:
-            shown = "; ".join(f"{key}: {short_repr(now, 60)} in {CONFIG}, {short_repr(then, 60)} when trained"
-                              for key, now, then in changed[:5])
-            raise ValueError(f"{self.path / CONFIG} differs from the settings its checkpoint was trained with "
-                             f"({shown}); restore it, or train a new run with the new settings")
+            shown = "; ".join(
+                f"{key}: {short_repr(now, 60)} in {CONFIG}, {short_repr(then, 60)} when trained"
+                for key, now, then in changed[:5]
+            )
+            raise ValueError(
+                f"{self.path / CONFIG} differs from the settings its checkpoint was trained with "
+                f"({shown}); restore it, or train a new run with the new settings"
+            )
         return config, checkpoint
 
     def plot_learning_curve(self, title: str, best_step: int | None = None, eval_episodes: int | None = None) -> Path:
@@ -172,8 +182,9 @@ class RunFolder:
         return out
 
 
-def learning_curve(rows: list[dict[str, float]], title: str, best_step: int | None = None,
-                   eval_episodes: int | None = None):
+def learning_curve(
+    rows: list[dict[str, float]], title: str, best_step: int | None = None, eval_episodes: int | None = None
+):
     """The centre policy's return against real training episodes, as the thesis's Figure 5.2: the measured centre
     (its ``best_step``, the one ``drrl eval`` runs, marked), the training episodes' mean return, and for a
     model-based run the centre's return inside the model. A matplotlib figure."""
@@ -188,17 +199,36 @@ def learning_curve(rows: list[dict[str, float]], title: str, best_step: int | No
     model_based = bool(rows) and "imagined_center_return" in rows[0]
     figure, axes = plt.subplots(figsize=(6.4, 4.2), layout="constrained")
     over = f" (mean of {eval_episodes} measuring episodes)" if eval_episodes else ""
-    axes.plot([r["real_episodes"] for r in measured], [r["center_return"] for r in measured], marker=".",
-              label=f"centre policy μ{over}")
+    axes.plot(
+        [r["real_episodes"] for r in measured],
+        [r["center_return"] for r in measured],
+        marker=".",
+        label=f"centre policy μ{over}",
+    )
     if model_based:
-        axes.plot([r["real_episodes"] for r in rows], [r["imagined_center_return"] for r in rows], ls="--",
-                  alpha=0.7, label="centre μ inside the world model")
-    axes.plot([r["real_episodes"] for r in rows], [r["mean_return"] for r in rows], alpha=0.5,
-              label="real episodes collected, mean" if model_based else "candidates, mean (one episode each)")
+        axes.plot(
+            [r["real_episodes"] for r in rows],
+            [r["imagined_center_return"] for r in rows],
+            ls="--",
+            alpha=0.7,
+            label="centre μ inside the world model",
+        )
+    axes.plot(
+        [r["real_episodes"] for r in rows],
+        [r["mean_return"] for r in rows],
+        alpha=0.5,
+        label="real episodes collected, mean" if model_based else "candidates, mean (one episode each)",
+    )
     best = [r for r in measured if best_step is not None and int(r[step]) == best_step]
     if best:
-        axes.plot(best[0]["real_episodes"], best[0]["center_return"], "*", markersize=12, color="C3",
-                  label=f"best measured centre ({step} {best_step}, what drrl eval runs)")
+        axes.plot(
+            best[0]["real_episodes"],
+            best[0]["center_return"],
+            "*",
+            markersize=12,
+            color="C3",
+            label=f"best measured centre ({step} {best_step}, what drrl eval runs)",
+        )
     axes.xaxis.set_major_locator(MaxNLocator(integer=True))
     axes.set_xlabel("real training episodes")
     axes.set_ylabel("return")
@@ -213,16 +243,19 @@ def read_checkpoint(file: Path) -> dict[str, Any]:
     _check_layout(file)
     try:
         with safe_open(file, framework="pt") as handle:
-            tensors = {key: handle.get_tensor(key) for key in handle.keys()}
+            tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118 (not iterable)
             metadata = handle.metadata() or {}
     except (SafetensorError, OSError) as error:
-        raise ValueError(f"checkpoint {file} is truncated or has bytes appended: its data do not match its header "
-                         f"({error})") from None
+        raise ValueError(
+            f"checkpoint {file} is truncated or has bytes appended: its data do not match its header ({error})"
+        ) from None
     if "state" not in metadata:
         raise ValueError(f"checkpoint {file} holds no drrl state: not a drrl checkpoint")
     if "sha256" not in metadata:
-        raise ValueError(f"checkpoint {file} has no SHA-256 digest, so its contents cannot be checked; drrl writes one "
-                         f"into every checkpoint")
+        raise ValueError(
+            f"checkpoint {file} has no SHA-256 digest, so its contents cannot be checked; drrl writes one "
+            f"into every checkpoint"
+        )
     if metadata["sha256"] != _digest(metadata["state"], tensors):
         raise ValueError(f"checkpoint {file} is corrupted: its contents do not match their SHA-256 digest")
     try:
@@ -246,8 +279,10 @@ def _check_layout(file: Path) -> None:
         raise ValueError(f"checkpoint {file} is not a safetensors file (no JSON header after its first 8 bytes)")
     header = int.from_bytes(start[:8], "little")
     if 8 + header > size:
-        raise ValueError(f"checkpoint {file} is truncated: its header alone needs {header} bytes, the file holds "
-                         f"{size - 8} after the header's length")
+        raise ValueError(
+            f"checkpoint {file} is truncated: its header alone needs {header} bytes, the file holds "
+            f"{size - 8} after the header's length"
+        )
 
 
 def _digest(tree: str, tensors: dict[str, torch.Tensor]) -> str:

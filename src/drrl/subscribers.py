@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 from tqdm import tqdm
 
@@ -46,8 +47,9 @@ class RunFolderWriter(Subscriber):
         try:
             self.folder.save_checkpoint(snapshot)
             if counters.iteration:
-                self.folder.plot_learning_curve(setup.world.title(setup), counters.best_iteration or None,
-                                                setup.config.eval_episodes)
+                self.folder.plot_learning_curve(
+                    setup.world.title(setup), counters.best_iteration or None, setup.config.eval_episodes
+                )
         finally:
             self.folder.release()
 
@@ -57,19 +59,32 @@ class ProgressBar(Subscriber):
 
     def __init__(self, description: str = "real episodes"):
         self.description = description
-        self.bar = None
+        self.bar: Any = None  # a tqdm bar, from started()
 
     def started(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
-        self.bar = tqdm(total=setup.world.real_budget, unit="ep", initial=counters.real_episodes,
-                        desc=self.description, dynamic_ncols=True)
+        self.bar = tqdm(
+            total=setup.world.real_budget,
+            unit="ep",
+            initial=counters.real_episodes,
+            desc=self.description,
+            dynamic_ncols=True,
+        )
 
     def row(self, setup: Setup, counters: Counters, row: dict) -> None:
         self.bar.update(counters.real_episodes - self.bar.n)
-        shown = {"return mean": row["mean_return"], "best": row.get("best_return"), "centre": row["center_return"],
-                 "model": row.get("imagined_center_return")}
-        self.bar.set_postfix_str(f"{setup.world.unit} {counters.iteration} | " + " ".join(
-            f"{name} {value:.1f}" for name, value in shown.items() if value is not None and not math.isnan(value)),
-            refresh=False)
+        shown = {
+            "return mean": row["mean_return"],
+            "best": row.get("best_return"),
+            "centre": row["center_return"],
+            "model": row.get("imagined_center_return"),
+        }
+        self.bar.set_postfix_str(
+            f"{setup.world.unit} {counters.iteration} | "
+            + " ".join(
+                f"{name} {value:.1f}" for name, value in shown.items() if value is not None and not math.isnan(value)
+            ),
+            refresh=False,
+        )
 
     def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
         if self.bar is not None:
@@ -111,7 +126,8 @@ class ModelGuard(Subscriber):
         if promised is None or math.isnan(real) or promised - real <= self.tolerance * max(abs(promised), abs(real)):
             return
         self.warned += 1
-        self.say(f"warning: iteration {counters.iteration}: the world model promised the centre {promised:.1f}, "
-                 f"reality gave {real:.1f}; the search is exploiting the model's errors. Try an ensemble "
-                 f"(--ensemble 5) with a disagreement penalty, a larger model, or more real episodes per iteration")
-
+        self.say(
+            f"warning: iteration {counters.iteration}: the world model promised the centre {promised:.1f}, "
+            f"reality gave {real:.1f}; the search is exploiting the model's errors. Try an ensemble "
+            f"(--ensemble 5) with a disagreement penalty, a larger model, or more real episodes per iteration"
+        )

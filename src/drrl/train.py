@@ -27,19 +27,30 @@ from drrl.subscribers import ModelGuard, ProgressBar, RunFolderWriter, TensorBoa
 
 
 def build_policy(config: TrainConfig, env) -> Policy:
-    return make_policy(config.policy, observation_size(env.single_observation_space),
-                       ActionMap(env.single_action_space).size)
+    return make_policy(
+        config.policy, observation_size(env.single_observation_space), ActionMap(env.single_action_space).size
+    )
 
 
 def build_search(config: TrainConfig, policy: Policy) -> Search:
     generator = torch.Generator().manual_seed(config.seed)
     center = policy.initial_center(generator).to(config.device)
-    pgpe = {} if config.search != "pgpe" else dict(
-        sampler=config.sampler, center_lr=config.center_lr, sigma_lr=config.sigma_lr, optimizer=config.optimizer,
-        fitness_shaping=config.fitness_shaping, baseline_decay=config.baseline_decay,
-        max_sigma_change=config.max_sigma_change)
-    return make_search(config.search, center, popsize=config.popsize, sigma_init=config.sigma_init,
-                       seed=config.seed, **pgpe)
+    pgpe = (
+        {}
+        if config.search != "pgpe"
+        else dict(
+            sampler=config.sampler,
+            center_lr=config.center_lr,
+            sigma_lr=config.sigma_lr,
+            optimizer=config.optimizer,
+            fitness_shaping=config.fitness_shaping,
+            baseline_decay=config.baseline_decay,
+            max_sigma_change=config.max_sigma_change,
+        )
+    )
+    return make_search(
+        config.search, center, popsize=config.popsize, sigma_init=config.sigma_init, seed=config.seed, **pgpe
+    )
 
 
 def memory_needed(config: TrainConfig, policy: Policy) -> int:
@@ -52,7 +63,9 @@ def memory_needed(config: TrainConfig, policy: Policy) -> int:
     if config.model_based is not None:
         model, widths = config.model_based, config.model_based.hidden
         inputs = policy.observation_size + policy.action_size
-        weights = sum((fan_in + width) * 4 * width for fan_in, width in zip((inputs, *widths), widths))
+        weights = sum(
+            (fan_in + width) * 4 * width for fan_in, width in zip((inputs, *widths[:-1]), widths, strict=True)
+        )
         needed += 4 * model.ensemble_size * (4 * weights + 2 * slots * sum(widths))  # Adam's moments, states
     return needed
 
@@ -62,23 +75,29 @@ def check_memory(config: TrainConfig, policy: Policy) -> None:
     needed = memory_needed(config, policy)
     free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else None
     if free is not None and needed > free:
-        raise ValueError(f"this run needs at least {needed / 2**30:.1f} GiB ({config.popsize} candidates of a "
-                         f"{policy.num_params:,}-weight {config.policy} policy, their episodes"
-                         f"{', the world model' if config.model_based else ''}), more than the {free / 2**30:.1f} "
-                         f"GiB free; use a smaller policy, popsize or model")
+        raise ValueError(
+            f"this run needs at least {needed / 2**30:.1f} GiB ({config.popsize} candidates of a "
+            f"{policy.num_params:,}-weight {config.policy} policy, their episodes"
+            f"{', the world model' if config.model_based else ''}), more than the {free / 2**30:.1f} "
+            f"GiB free; use a smaller policy, popsize or model"
+        )
 
 
 def resolved(config: TrainConfig, env_id: str) -> TrainConfig:
     """``config`` with the settings left to drrl decided for ``env_id``: the engine, and observation normalisation
     (on for envs that are not drrl's own, whose observations can be of any scale; off for model-based runs)."""
     norm = config.observation_norm
-    return config.model_copy(update={
-        "engine": choose_engine(env_id, config.engine),
-        "observation_norm": (not is_own(env_id) and config.model_based is None) if norm is None else norm})
+    return config.model_copy(
+        update={
+            "engine": choose_engine(env_id, config.engine),
+            "observation_norm": (not is_own(env_id) and config.model_based is None) if norm is None else norm,
+        }
+    )
 
 
-def prepare(config: TrainConfig, backend: str = "local", address: str | None = None,
-            workers: int | None = None) -> Setup:
+def prepare(
+    config: TrainConfig, backend: str = "local", address: str | None = None, workers: int | None = None
+) -> Setup:
     """Build envs, policy, search, world and backend; bad names, settings or unsupported spaces raise ValueError
     here, before any work."""
     entry = lookup(config.env)
@@ -92,15 +111,24 @@ def prepare(config: TrainConfig, backend: str = "local", address: str | None = N
     eval_env = make_batch_env(entry.env_id, config.eval_episodes, config.engine)
     try:
         search = build_search(config, policy)
-        workload = Workload(policy, RegisteredEnv(entry.env_id, config.engine), config.popsize,
-                            config.episodes_per_candidate, config.max_steps, moments=bool(config.observation_norm))
+        workload = Workload(
+            policy,
+            RegisteredEnv(entry.env_id, config.engine),
+            config.popsize,
+            config.episodes_per_candidate,
+            config.max_steps,
+            moments=bool(config.observation_norm),
+        )
         evaluator = make_backend(backend, workload, address=address, workers=workers)
     except BaseException:
         eval_env.close()
         raise
     try:
-        world = (ModelBased(config, entry, policy, eval_env, evaluator) if config.model_based
-                 else ModelFree(config, policy, evaluator))
+        world = (
+            ModelBased(config, entry, policy, eval_env, evaluator)
+            if config.model_based
+            else ModelFree(config, policy, evaluator)
+        )
     except BaseException:
         evaluator.close()
         eval_env.close()
@@ -108,8 +136,9 @@ def prepare(config: TrainConfig, backend: str = "local", address: str | None = N
     return Setup(config, entry, policy, search, world, eval_env)
 
 
-def prepare_resume(folder: RunFolder, backend: str = "local", address: str | None = None,
-                   workers: int | None = None) -> tuple[Setup, Counters]:
+def prepare_resume(
+    folder: RunFolder, backend: str = "local", address: str | None = None, workers: int | None = None
+) -> tuple[Setup, Counters]:
     """The run in ``folder`` rebuilt at its checkpoint, its metrics.csv cut back to the checkpoint's step; the folder
     is held by this process from now on (``RunFolder.claim``).
 
@@ -144,8 +173,10 @@ def open_run(folder: RunFolder) -> tuple[TrainConfig, dict]:
 def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> torch.Tensor:
     """The best measured centre (or, ``final``, the last one) for ``policy``, which must have its size."""
     if checkpoint["num_params"] != policy.num_params:
-        raise ValueError(f"checkpoint holds {checkpoint['num_params']} weights, but its {policy.num_params}-weight "
-                         f"policy needs as many")
+        raise ValueError(
+            f"checkpoint holds {checkpoint['num_params']} weights, but its {policy.num_params}-weight "
+            f"policy needs as many"
+        )
     return checkpoint["center"] if final else checkpoint["best_center"]
 
 
@@ -162,15 +193,22 @@ def subscribers(folder: RunFolder | None, progress: bool, tensorboard: bool = Fa
     return attached
 
 
-def train(config: TrainConfig, out: Path | None = None, progress: bool = False, backend: str = "local",
-          address: str | None = None, workers: int | None = None) -> Counters:
+def train(
+    config: TrainConfig,
+    out: Path | None = None,
+    progress: bool = False,
+    backend: str = "local",
+    address: str | None = None,
+    workers: int | None = None,
+) -> Counters:
     """Spend ``config.budget`` real episodes, model-free or model-based; write a run folder to ``out`` if given."""
     setup = prepare(config, backend, address, workers)
     return run(setup, subscribers(None if out is None else RunFolder.create(out), progress))
 
 
-def resume(path: Path, progress: bool = False, backend: str = "local", address: str | None = None,
-           workers: int | None = None) -> Counters:
+def resume(
+    path: Path, progress: bool = False, backend: str = "local", address: str | None = None, workers: int | None = None
+) -> Counters:
     """Continue the run in folder ``path`` from its checkpoint to the end of its budget."""
     folder = RunFolder(path)
     setup, counters = prepare_resume(folder, backend, address, workers)

@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from gymnasium.vector import SyncVectorEnv, VectorWrapper
 
-from drrl.envs.baxter.model import import_mujoco
 from drrl.envs.batch import ActionMap, missing_dependency, observation_size
+from drrl.envs.baxter.model import import_mujoco
 from drrl.envs.registry import lookup
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
@@ -90,7 +90,8 @@ class FrameRecorder(VectorWrapper):
         super().__init__(SyncVectorEnv([lambda: env]))
         self.single, self.period = env, period
         self.frames: list[np.ndarray] = []
-        self.steps, self.ended, self.info = 0, False, {}
+        self.steps, self.ended = 0, False
+        self.info: dict = {}
 
     def reset(self, **kwargs):
         observations, infos = self.env.reset(**kwargs)
@@ -108,8 +109,15 @@ class FrameRecorder(VectorWrapper):
         return observations, rewards, terminated, truncated, infos
 
 
-def record_episode(policy: Policy, center: torch.Tensor, env: gymnasium.Env, *, seed: int = 0, fps: float = 25.0,
-                   max_steps: int | None = None) -> Recording:
+def record_episode(
+    policy: Policy,
+    center: torch.Tensor,
+    env: gymnasium.Env,
+    *,
+    seed: int = 0,
+    fps: float = 25.0,
+    max_steps: int | None = None,
+) -> Recording:
     """Run the policy ``center`` (n,) for one episode of ``env`` (render_mode "rgb_array") through the rollout that
     trains and measures (:func:`drrl.rollout.evaluate`, episode seed from ``seed``), keeping a frame at the start,
     then every k-th step, k = the env's ``render_fps`` / ``fps`` rounded (at least 1), and at the end."""
@@ -119,8 +127,16 @@ def record_episode(policy: Policy, center: torch.Tensor, env: gymnasium.Env, *, 
     return Recording(recorder.frames, rate / recorder.period, float(result.returns[0]), result.steps, recorder.info)
 
 
-def render_run(run_path: Path | str, out: Path | str, *, final: bool = False, seed: int = 0, fps: float = 25.0,
-               max_steps: int | None = None, **env_options: Any) -> Recording:
+def render_run(
+    run_path: Path | str,
+    out: Path | str,
+    *,
+    final: bool = False,
+    seed: int = 0,
+    fps: float = 25.0,
+    max_steps: int | None = None,
+    **env_options: Any,
+) -> Recording:
     """Record one episode of a run folder's best measured (or, with ``final``, last) centre policy to ``out``, cut
     at ``max_steps`` (default: the run's own ``max_steps``, if it had one).
 

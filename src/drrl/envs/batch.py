@@ -95,8 +95,9 @@ def make_batch_env(name: str, num_envs: int, engine: str = "auto") -> VectorEnv:
 def missing_dependency(env_id: str, error: Exception) -> str:
     """What is missing to make ``env_id``, and the pip command that installs it where Gymnasium names one."""
     entry_point = str(gymnasium.spec(env_id).entry_point)
-    family = next((name for name in ("mujoco", "box2d", "atari", "classic_control")
-                   if f".{name}." in f".{entry_point}."), None)
+    family = next(
+        (name for name in ("mujoco", "box2d", "atari", "classic_control") if f".{name}." in f".{entry_point}."), None
+    )
     hint = f'; pip install "gymnasium[{family}]"' if family else ""
     if isinstance(error, ModuleNotFoundError):
         return f"its module {error.name!r} is not installed{hint}"

@@ -146,8 +146,13 @@ def thesis_reward(state: np.ndarray, step, horizon: int = 200) -> tuple[np.ndarr
 class CartPoleTask(Protocol):
     """What the environments need from a task. Variants (partially observed, swing-up) provide the same."""
 
-    horizon: int  # steps after which an episode is truncated
-    observation_size: int
+    @property
+    def horizon(self) -> int:
+        """Steps after which an episode is truncated."""
+
+    @property
+    def observation_size(self) -> int:
+        """The length of an observation."""
 
     def sample_starts(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """n start states (n, 4), float64."""
@@ -292,10 +297,11 @@ class _SeededStarts:
         return np.concatenate([self._task.sample_starts(self._rng(i), 1) for i in indices])
 
     def _rng(self, i: int) -> np.random.Generator:
-        if self._rngs[i] is None:
-            self._rngs[i] = np.random.default_rng(self._seeds[i])
-            self._task.sample_starts(self._rngs[i], 1)  # the first start, handed out by first()
-        return self._rngs[i]
+        rng = self._rngs[i]
+        if rng is None:
+            rng = self._rngs[i] = np.random.default_rng(self._seeds[i])
+            self._task.sample_starts(rng, 1)  # the first start, handed out by first()
+        return rng
 
 
 class CartPoleVectorEnv(gym.vector.VectorEnv):
@@ -317,7 +323,7 @@ class CartPoleVectorEnv(gym.vector.VectorEnv):
     ) -> None:
         self.num_envs = num_envs
         self.render_mode = _check_render_mode(render_mode)
-        self.task = task if task is not None else BalanceTask()
+        self.task: CartPoleTask = task if task is not None else BalanceTask()
         self.physics = CartPolePhysics(constants if constants is not None else CartPoleConstants())
         self.single_observation_space = _observation_space(self.task)
         self.single_action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
@@ -415,7 +421,7 @@ class CartPoleEnv(gym.Env):
         constants: CartPoleConstants | None = None,
     ) -> None:
         self.render_mode = _check_render_mode(render_mode)
-        self.task = task if task is not None else BalanceTask()
+        self.task: CartPoleTask = task if task is not None else BalanceTask()
         self.physics = CartPolePhysics(constants if constants is not None else CartPoleConstants())
         self.observation_space = _observation_space(self.task)
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
@@ -503,14 +509,15 @@ NEAR_OPTIMAL_RETURN = -50.0  # an LQR controller scores about −41
 def balance_verdict(episode_returns, terminated) -> dict[str, bool]:
     """balanced: no evaluation episode left the bounds in its 200 steps; near-optimal: balanced and mean ≥ −50."""
     balanced = not bool(terminated.any())
-    return {"balanced": balanced,
-            "near_optimal": balanced and float(episode_returns.mean()) >= NEAR_OPTIMAL_RETURN}
+    return {"balanced": balanced, "near_optimal": balanced and float(episode_returns.mean()) >= NEAR_OPTIMAL_RETURN}
 
 
 def explain_balance(episode_returns, terminated) -> str:
     kept = int((~terminated).sum())
-    return (f"({kept}/{terminated.numel()} episodes kept the pole up for all {BalanceTask.horizon} steps; "
-            f"near-optimal needs a mean return ≥ {NEAR_OPTIMAL_RETURN:g})")
+    return (
+        f"({kept}/{terminated.numel()} episodes kept the pole up for all {BalanceTask.horizon} steps; "
+        f"near-optimal needs a mean return ≥ {NEAR_OPTIMAL_RETURN:g})"
+    )
 
 
 def swing_up_verdict(episode_returns, terminated) -> dict[str, bool]:
@@ -520,8 +527,10 @@ def swing_up_verdict(episode_returns, terminated) -> dict[str, bool]:
 
 def explain_swing_up(episode_returns, terminated) -> str:
     high = int(((episode_returns >= SWING_UP_SOLVED_RETURN) & ~terminated).sum())
-    return (f"({high}/{terminated.numel()} episodes kept the cart on the track and returned ≥ "
-            f"{SWING_UP_SOLVED_RETURN:g} of at most {SwingUpTask.horizon}; solved needs all of them)")
+    return (
+        f"({high}/{terminated.numel()} episodes kept the cart on the track and returned ≥ "
+        f"{SWING_UP_SOLVED_RETURN:g} of at most {SwingUpTask.horizon}; solved needs all of them)"
+    )
 
 
 def balance_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -539,8 +548,14 @@ def swing_up_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.nda
 
 
 # benchmarks/partially_observed.py: a memory is needed, and a small σ with ranks keeps it stable
-PARTIALLY_OBSERVED_SETTINGS = {"policy": "rnn:4", "popsize": 16, "sigma_init": 0.2, "sigma_lr": 0.05,
-                               "fitness_shaping": "centered_ranks", "budget": 2000}
+PARTIALLY_OBSERVED_SETTINGS = {
+    "policy": "rnn:4",
+    "popsize": 16,
+    "sigma_init": 0.2,
+    "sigma_lr": 0.05,
+    "fitness_shaping": "centered_ranks",
+    "budget": 2000,
+}
 
 
 def _register() -> None:
@@ -548,14 +563,31 @@ def _register() -> None:
     configs/cartpole-swingup-model-based.toml)."""
     from drrl.envs.registry import EnvEntry, register
 
-    balance = {"verdict": balance_verdict, "explain": explain_balance, "reward": balance_reward}
-    for entry, task in ((EnvEntry("drrl/CartPole-v0", "cartpole", **balance), None),
-                        (EnvEntry("drrl/CartPolePO-v0", "cartpole-po", **balance,  # only (s, θ) observed
-                                  suggested=PARTIALLY_OBSERVED_SETTINGS), PartiallyObservedTask()),
-                        (EnvEntry("drrl/CartPoleSwingUp-v0", "cartpole-swingup", swing_up_verdict, explain_swing_up,
-                                  swing_up_reward), SwingUpTask())):
-        register(entry, "drrl.envs.cartpole:CartPoleEnv", "drrl.envs.cartpole:CartPoleVectorEnv",
-                 {} if task is None else {"task": task})
+    balance: dict[str, Any] = {"verdict": balance_verdict, "explain": explain_balance, "reward": balance_reward}
+    for entry, task in (
+        (EnvEntry("drrl/CartPole-v0", "cartpole", **balance), None),
+        (
+            EnvEntry(
+                "drrl/CartPolePO-v0",
+                "cartpole-po",
+                **balance,  # only (s, θ) observed
+                suggested=PARTIALLY_OBSERVED_SETTINGS,
+            ),
+            PartiallyObservedTask(),
+        ),
+        (
+            EnvEntry(
+                "drrl/CartPoleSwingUp-v0", "cartpole-swingup", swing_up_verdict, explain_swing_up, swing_up_reward
+            ),
+            SwingUpTask(),
+        ),
+    ):
+        register(
+            entry,
+            "drrl.envs.cartpole:CartPoleEnv",
+            "drrl.envs.cartpole:CartPoleVectorEnv",
+            {} if task is None else {"task": task},
+        )
 
 
 _register()

@@ -9,6 +9,12 @@ SOLVED_LEVELS = {"Pendulum-v1": -200.0}  # Pendulum-v1's spec has no reward_thre
 SUGGESTED = {
     # −145.4 over 50 fresh episodes after 51,200 episodes (33 s with EnvPool); PGPE with the same policy stayed
     # below −800: its one episode a candidate from random starts is too noisy to rank swing-up policies.
-    "Pendulum-v1": {"search": "cmaes", "policy": "mlp:16", "popsize": 64, "episodes_per_candidate": 8,
-                    "sigma_init": 0.5, "budget": 51200},
+    "Pendulum-v1": {
+        "search": "cmaes",
+        "policy": "mlp:16",
+        "popsize": 64,
+        "episodes_per_candidate": 8,
+        "sigma_init": 0.5,
+        "budget": 51200,
+    },
 }

@@ -60,8 +60,9 @@ class PooledEpisodes(EpisodeSlots):
                 self._pool.close()
             fresh = np.random.SeedSequence().generate_state(self.num_envs)  # for the unseeded ones
             env_seeds = [int(fresh[i] if seed is None else seed) % 2**SEED_BITS for i, seed in enumerate(seeds)]
-            self._pool = envpool.make_gymnasium(self.env_id, num_envs=self.num_envs, env_seed=env_seeds,
-                                                num_threads=min(self.num_envs, _usable_cpus()))
+            self._pool = envpool.make_gymnasium(
+                self.env_id, num_envs=self.num_envs, env_seed=env_seeds, num_threads=min(self.num_envs, _usable_cpus())
+            )
         with _quiet():  # the first reset builds the pool's spaces
             return self._pool.reset()[0]
 

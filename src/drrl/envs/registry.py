@@ -54,11 +54,13 @@ class EnvEntry:
 ENTRIES: dict[str, EnvEntry] = {}  # by Gymnasium id
 
 
-def register(entry: EnvEntry, entry_point: str, vector_entry_point: str | None = None,
-             kwargs: dict | None = None) -> None:
+def register(
+    entry: EnvEntry, entry_point: str, vector_entry_point: str | None = None, kwargs: dict | None = None
+) -> None:
     """Register ``entry`` with drrl and its environment with Gymnasium."""
-    gymnasium.register(id=entry.env_id, entry_point=entry_point, vector_entry_point=vector_entry_point,
-                       kwargs=dict(kwargs or {}))
+    gymnasium.register(
+        id=entry.env_id, entry_point=entry_point, vector_entry_point=vector_entry_point, kwargs=dict(kwargs or {})
+    )
     ENTRIES[entry.env_id] = entry
 
 
@@ -90,12 +92,17 @@ def lookup(name: str) -> EnvEntry:
     if env_id not in gymnasium.registry:
         if not name.strip():
             raise ValueError(f"the environment name is empty; drrl's own: {', '.join(aliases())}")
-        close = [match for match in difflib.get_close_matches(name[:200], [*aliases(), *gymnasium.registry], n=5,
-                                                               cutoff=0.8) if _can_make(match)][:3]
+        close = [
+            match
+            for match in difflib.get_close_matches(name[:200], [*aliases(), *gymnasium.registry], n=5, cutoff=0.8)
+            if _can_make(match)
+        ][:3]
         hint = f"did you mean {' or '.join(close)}? " if close else ""
         shown = repr(name) if len(name) <= 60 else repr(name[:57]) + "..."
-        raise ValueError(f"unknown environment {shown}; {hint}drrl's own: {', '.join(aliases())}; or any id "
-                         f"registered with Gymnasium (e.g. Pendulum-v1; gymnasium.pprint_registry() lists them)")
+        raise ValueError(
+            f"unknown environment {shown}; {hint}drrl's own: {', '.join(aliases())}; or any id "
+            f"registered with Gymnasium (e.g. Pendulum-v1; gymnasium.pprint_registry() lists them)"
+        )
     return ENTRIES.get(env_id) or gymnasium_entry(env_id)
 
 

@@ -26,13 +26,18 @@ class SerialEpisodes(EpisodeSlots):
         super().__init__(num_envs, self.envs[0].observation_space, self.envs[0].action_space)
 
     def start(self, seeds):
-        return np.stack([env.reset(seed=seed)[0] for env, seed in zip(self.envs, seeds)])
+        return np.stack([env.reset(seed=seed)[0] for env, seed in zip(self.envs, seeds, strict=True)])
 
     def advance(self, slots, actions):
-        observations, rewards, terminated, truncated = zip(*(self.envs[i].step(action)[:4]
-                                                             for i, action in zip(slots, actions)))
-        return (np.stack(observations), np.asarray(rewards, dtype=np.float64), np.asarray(terminated, dtype=bool),
-                np.asarray(truncated, dtype=bool))
+        observations, rewards, terminated, truncated = zip(
+            *(self.envs[i].step(action)[:4] for i, action in zip(slots, actions, strict=True)), strict=True
+        )
+        return (
+            np.stack(observations),
+            np.asarray(rewards, dtype=np.float64),
+            np.asarray(terminated, dtype=bool),
+            np.asarray(truncated, dtype=bool),
+        )
 
     def close_extras(self, **kwargs):
         for env in self.envs:

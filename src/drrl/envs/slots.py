@@ -38,8 +38,9 @@ class EpisodeSlots(VectorEnv):
         self._terminated = np.zeros(num_envs, dtype=bool)
         self._truncated = np.zeros(num_envs, dtype=bool)
 
-    def reset(self, *, seed: int | Sequence[int] | None = None,
-              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(
+        self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode in every sub-environment: ``seed`` None (go on from the current generators), one int
         (sub-environment i gets seed + i, as in Gymnasium's vector envs) or one seed each."""
         if seed is None or isinstance(seed, (int, np.integer)):
@@ -61,8 +62,7 @@ class EpisodeSlots(VectorEnv):
         running = np.flatnonzero(~(self._terminated | self._truncated))
         rewards = np.zeros(self.num_envs)
         if running.size:
-            observations, rewards[running], terminated, truncated = self.advance(
-                running, np.asarray(actions)[running])
+            observations, rewards[running], terminated, truncated = self.advance(running, np.asarray(actions)[running])
             self._observations[running] = observations
             self._terminated[running] = terminated
             self._truncated[running] = truncated
@@ -73,7 +73,6 @@ class EpisodeSlots(VectorEnv):
         """Reset every sub-environment, sub-environment i with ``seeds[i]``; their first observations."""
 
     @abstractmethod
-    def advance(self, slots: np.ndarray, actions: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def advance(self, slots: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Step sub-environments ``slots`` (ascending) with ``actions`` (one row each): observations, rewards,
         terminated and truncated, in the order of ``slots``."""

@@ -13,7 +13,24 @@ from drrl.models.imagined import ImaginedEnv, ImaginedWorld, RewardFunction
 from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS, WorldModel, unfolding_loss, window_losses
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
-__all__ = ["FUTURE_INPUTS", "MODEL_BASED_DEFAULTS", "MODEL_KINDS", "MODEL_OPTIMIZERS", "Episode", "EpisodeBuffer",
-           "EpisodeRecorder", "FitReport", "FitSettings", "ImaginedEnv", "ImaginedWorld", "LearnedModel",
-           "ModelBasedSettings", "Prediction", "RewardFunction", "Windows", "WorldModel", "unfolding_loss",
-           "window_losses"]
+__all__ = [
+    "FUTURE_INPUTS",
+    "MODEL_BASED_DEFAULTS",
+    "MODEL_KINDS",
+    "MODEL_OPTIMIZERS",
+    "Episode",
+    "EpisodeBuffer",
+    "EpisodeRecorder",
+    "FitReport",
+    "FitSettings",
+    "ImaginedEnv",
+    "ImaginedWorld",
+    "LearnedModel",
+    "ModelBasedSettings",
+    "Prediction",
+    "RewardFunction",
+    "Windows",
+    "WorldModel",
+    "unfolding_loss",
+    "window_losses",
+]

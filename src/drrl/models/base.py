@@ -26,7 +26,9 @@ class Prediction:
 class LearnedModel(Protocol):
     """A learned model of an environment, stepped in batches (an ``nn.Module``)."""
 
-    device: torch.device
+    @property
+    def device(self) -> torch.device:
+        """Where the model's weights are."""
 
     def __len__(self) -> int:
         """K, the members of the ensemble (1 for a single model)."""
@@ -37,8 +39,13 @@ class LearnedModel(Protocol):
     def initial_state(self, batch: int) -> list[torch.Tensor]:
         """Fresh recurrent state for ``batch`` new episodes, every member's."""
 
-    def step(self, observation: torch.Tensor, action: torch.Tensor, state: list[torch.Tensor],
-             observed: bool | torch.Tensor = True) -> tuple[Prediction, list[torch.Tensor]]:
+    def step(
+        self,
+        observation: torch.Tensor,
+        action: torch.Tensor,
+        state: list[torch.Tensor],
+        observed: bool | torch.Tensor = True,
+    ) -> tuple[Prediction, list[torch.Tensor]]:
         """Every member's prediction of the next step (K, B, ·) for o_t (B, o) and a_t (B, a); the new state."""
 
     def disagreement(self, prediction: Prediction) -> torch.Tensor:

@@ -80,13 +80,17 @@ class EpisodeBuffer:
             raise ValueError(f"unfold must be >= 1 and overshoot >= 0, got unfold={unfold}, overshoot={overshoot}")
         longest = max((len(episode) for episode in self.episodes), default=0)
         if longest < unfold:
-            raise ValueError(f"the data is too short for the unfolding: unfolding {unfold} steps needs an episode of "
-                             f"at least {unfold} steps, but the longest of the {len(self)} episode(s) has {longest}")
+            raise ValueError(
+                f"the data is too short for the unfolding: unfolding {unfold} steps needs an episode of "
+                f"at least {unfold} steps, but the longest of the {len(self)} episode(s) has {longest}"
+            )
         if longest < unfold + overshoot:
-            raise ValueError(f"the overshooting horizon is longer than the data: {unfold} unfolded + {overshoot} "
-                             f"overshooting steps need an episode of at least {unfold + overshoot} steps, but the "
-                             f"longest of the {len(self)} episode(s) has {longest}; lower the overshoot or collect "
-                             f"longer episodes")
+            raise ValueError(
+                f"the overshooting horizon is longer than the data: {unfold} unfolded + {overshoot} "
+                f"overshooting steps need an episode of at least {unfold + overshoot} steps, but the "
+                f"longest of the {len(self)} episode(s) has {longest}; lower the overshoot or collect "
+                f"longer episodes"
+            )
 
     def windows(self, unfold: int, overshoot: int) -> Windows:
         """Every window of ``unfold`` observed + ``overshoot`` overshooting steps (see the module docstring).
@@ -99,7 +103,7 @@ class EpisodeBuffer:
             self.check_unfolding(unfold, overshoot)
         length = unfold + overshoot
         pieces = [_episode_windows(episode, unfold, length) for episode in self.episodes if len(episode) >= unfold]
-        return Windows(*(torch.as_tensor(np.concatenate(parts)) for parts in zip(*pieces)))
+        return Windows(*(torch.as_tensor(np.concatenate(parts)) for parts in zip(*pieces, strict=True)))
 
     def window_episodes(self, unfold: int) -> np.ndarray:
         """The episode (its index in the buffer) of each of :meth:`windows`' windows, in their order."""
@@ -111,19 +115,23 @@ class EpisodeBuffer:
         observations = np.concatenate([episode.observations for episode in self.episodes])
         changes = np.concatenate([np.diff(episode.observations, axis=0) for episode in self.episodes])
         rewards = np.concatenate([episode.rewards for episode in self.episodes])
-        return {"observation_mean": torch.as_tensor(observations.mean(0)),
-                "observation_scale": torch.as_tensor(_positive(observations.std(0))),
-                "change_scale": torch.as_tensor(_positive(changes.std(0))),
-                "reward_mean": torch.as_tensor(rewards.mean()),
-                "reward_scale": torch.as_tensor(_positive(rewards.std()))}
+        return {
+            "observation_mean": torch.as_tensor(observations.mean(0)),
+            "observation_scale": torch.as_tensor(_positive(observations.std(0))),
+            "change_scale": torch.as_tensor(_positive(changes.std(0))),
+            "reward_mean": torch.as_tensor(rewards.mean()),
+            "reward_scale": torch.as_tensor(_positive(rewards.std())),
+        }
 
     def state_dict(self) -> dict:
         """All episodes as four concatenated tensors and their lengths (no pickling)."""
-        return {"observations": torch.as_tensor(np.concatenate([e.observations for e in self.episodes])),
-                "actions": torch.as_tensor(np.concatenate([e.actions for e in self.episodes])),
-                "rewards": torch.as_tensor(np.concatenate([e.rewards for e in self.episodes])),
-                "lengths": torch.tensor([len(e) for e in self.episodes]),
-                "terminated": torch.tensor([e.terminated for e in self.episodes])}
+        return {
+            "observations": torch.as_tensor(np.concatenate([e.observations for e in self.episodes])),
+            "actions": torch.as_tensor(np.concatenate([e.actions for e in self.episodes])),
+            "rewards": torch.as_tensor(np.concatenate([e.rewards for e in self.episodes])),
+            "lengths": torch.tensor([len(e) for e in self.episodes]),
+            "terminated": torch.tensor([e.terminated for e in self.episodes]),
+        }
 
     @classmethod
     def from_state_dict(cls, state: dict) -> EpisodeBuffer:
@@ -131,8 +139,12 @@ class EpisodeBuffer:
         observations = np.split(state["observations"].numpy(), np.cumsum([n + 1 for n in lengths])[:-1])
         actions = np.split(state["actions"].numpy(), np.cumsum(lengths)[:-1])
         rewards = np.split(state["rewards"].numpy(), np.cumsum(lengths)[:-1])
-        return cls([Episode(o, a, r, bool(t)) for o, a, r, t in
-                    zip(observations, actions, rewards, state["terminated"].tolist())])
+        return cls(
+            [
+                Episode(o, a, r, bool(t))
+                for o, a, r, t in zip(observations, actions, rewards, state["terminated"].tolist(), strict=True)
+            ]
+        )
 
 
 def _positive(std: np.ndarray) -> np.ndarray:
@@ -149,8 +161,14 @@ def _episode_windows(episode: Episode, unfold: int, length: int) -> tuple[np.nda
     inside = np.minimum(steps, n - 1)
     ends = np.zeros(n, dtype=np.float32)
     ends[-1] = float(episode.terminated)
-    return (episode.observations[inside], episode.actions[inside], episode.observations[inside + 1],
-            episode.rewards[inside], ends[inside] * mask, mask.astype(np.float32))
+    return (
+        episode.observations[inside],
+        episode.actions[inside],
+        episode.observations[inside + 1],
+        episode.rewards[inside],
+        ends[inside] * mask,
+        mask.astype(np.float32),
+    )
 
 
 def model_actions(actions, space: spaces.Space) -> np.ndarray:
@@ -164,7 +182,7 @@ def model_actions(actions, space: spaces.Space) -> np.ndarray:
 
 def action_size(space: spaces.Space) -> int:
     """The length of :func:`model_actions`' rows for ``space``."""
-    return int(space.n) if isinstance(space, spaces.Discrete) else int(np.prod(space.shape))
+    return int(space.n) if isinstance(space, spaces.Discrete) else int(np.prod(space.shape or ()))
 
 
 class EpisodeRecorder(VectorWrapper):
@@ -206,6 +224,13 @@ class EpisodeRecorder(VectorWrapper):
 
     def episodes(self) -> list[Episode]:
         """The recorded episodes with at least one step, in sub-environment order."""
-        return [Episode(np.stack(self._observations[i]), np.stack(self._actions[i]),
-                        np.asarray(self._rewards[i], dtype=np.float32), bool(self._terminated[i]))
-                for i in range(self.num_envs) if self._actions[i]]
+        return [
+            Episode(
+                np.stack(self._observations[i]),
+                np.stack(self._actions[i]),
+                np.asarray(self._rewards[i], dtype=np.float32),
+                bool(self._terminated[i]),
+            )
+            for i in range(self.num_envs)
+            if self._actions[i]
+        ]

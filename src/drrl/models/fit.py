@@ -18,13 +18,14 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import torch
 
 from drrl.models.data import EpisodeBuffer
-from drrl.models.recurrent import WorldModel, window_losses
 from drrl.models.optimizers import AdamLambda, NesterovAG
+from drrl.models.recurrent import WorldModel, window_losses
 
 MODEL_OPTIMIZERS = ("adam_lambda", "nag", "adam", "sgd")
 
@@ -55,8 +56,9 @@ class FitSettings:
 
     def __post_init__(self):
         if self.optimizer not in MODEL_OPTIMIZERS:
-            raise ValueError(f"unknown model optimizer {self.optimizer!r}; choose one of: "
-                             f"{', '.join(MODEL_OPTIMIZERS)}")
+            raise ValueError(
+                f"unknown model optimizer {self.optimizer!r}; choose one of: {', '.join(MODEL_OPTIMIZERS)}"
+            )
         if self.unfold < 1 or self.overshoot < 0:
             raise ValueError(f"unfold must be >= 1 and overshoot >= 0, got {self.unfold} and {self.overshoot}")
         for name in ("batch_size", "max_updates", "validate_every", "patience"):
@@ -90,8 +92,9 @@ def make_model_optimizer(name: str, params, lr: float, momentum: float = 0.9) ->
     raise ValueError(f"unknown model optimizer {name!r}; choose one of: {', '.join(MODEL_OPTIMIZERS)}")
 
 
-def fit(model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSettings(), seed: int = 0
-        ) -> list[FitReport]:
+def fit(
+    model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSettings(), seed: int = 0
+) -> list[FitReport]:
     """Train ``model``'s K members on ``buffer`` in place, side by side, each with its own held-out episodes,
     normalisation and minibatches; returns a report per member. Raises if the data cannot be unfolded.
 
@@ -106,8 +109,9 @@ def fit(model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSet
     windows = buffer.windows(settings.unfold, settings.overshoot).to(model.device)
     episode_of_window = buffer.window_episodes(settings.unfold)
     train_index, train_weight = _member_windows([training for training, _ in splits], buffer, episode_of_window)
-    valid_index, valid_weight = _member_windows([held_out if len(held_out) else training
-                                                 for training, held_out in splits], buffer, episode_of_window)
+    valid_index, valid_weight = _member_windows(
+        [held_out if len(held_out) else training for training, held_out in splits], buffer, episode_of_window
+    )
     train_counts = train_weight.sum(1)
     generator = torch.Generator().manual_seed(seed)
     parameters = list(model.parameters())
@@ -117,8 +121,9 @@ def fit(model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSet
     def losses_of(index: torch.Tensor) -> torch.Tensor:
         batch = windows.select(index.to(model.device))
         prediction = model.unfold(batch.observations, batch.actions, settings.unfold)
-        return window_losses(model, prediction, batch.next_observations, batch.rewards, batch.ends, batch.mask,
-                             settings.learn_reward)
+        return window_losses(
+            model, prediction, batch.next_observations, batch.rewards, batch.ends, batch.mask, settings.learn_reward
+        )
 
     def validation_losses() -> torch.Tensor:
         with torch.no_grad():
@@ -132,7 +137,7 @@ def fit(model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSet
         positions = (torch.rand(len(model), settings.batch_size, generator=generator) * train_counts[:, None]).long()
         index = train_index.gather(1, positions)
 
-        def closure():
+        def closure(index=index):
             optimizer.zero_grad()
             loss = losses_of(index).mean(-1)  # (K,): the members are independent, so their sum trains each alone
             loss.sum().backward()
@@ -140,7 +145,7 @@ def fit(model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSet
                 clip_member_gradients(parameters, settings.max_grad_norm)
             return loss
 
-        loss = optimizer.step(closure)
+        loss = cast(torch.Tensor, optimizer.step(closure))  # what the closure returned
         schedule.step()
         if not torch.isfinite(loss).all():
             stop = "diverged"
@@ -152,23 +157,34 @@ def fit(model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSet
                 break
             improved = current < best_loss
             best_loss = torch.where(improved, current, best_loss)
-            for kept, p in zip(best_state, parameters):
+            for kept, p in zip(best_state, parameters, strict=True):
                 kept[improved] = p.detach()[improved]
             since_best = torch.where(improved, 0, since_best + 1)
             if (since_best >= settings.patience).all():
                 stop = "patience"
                 break
     with torch.no_grad():
-        for kept, p in zip(best_state, parameters):
+        for kept, p in zip(best_state, parameters, strict=True):
             p.copy_(kept)
     if stop == "diverged":
-        warnings.warn(f"world model diverged (non-finite loss) after {updates} updates; kept the weights of its "
-                      f"last good validation (losses {best_loss.tolist()})", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"world model diverged (non-finite loss) after {updates} updates; kept the weights of its "
+            f"last good validation (losses {best_loss.tolist()})",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     with torch.no_grad():
         train_loss = (losses_of(train_index) * train_weight).sum(-1) / train_counts
-    return [FitReport(updates=updates, train_loss=float(train_loss[k]), valid_loss=float(best_loss[k]),
-                      held_out_episodes=len(held_out), stop=stop)
-            for k, (_, held_out) in enumerate(splits)]
+    return [
+        FitReport(
+            updates=updates,
+            train_loss=float(train_loss[k]),
+            valid_loss=float(best_loss[k]),
+            held_out_episodes=len(held_out),
+            stop=stop,
+        )
+        for k, (_, held_out) in enumerate(splits)
+    ]
 
 
 def clip_member_gradients(parameters: list[torch.Tensor], max_norm: float) -> None:
@@ -181,8 +197,9 @@ def clip_member_gradients(parameters: list[torch.Tensor], max_norm: float) -> No
         g.mul_(factor.reshape(-1, *[1] * (g.dim() - 1)))
 
 
-def _member_windows(parts: list[EpisodeBuffer], buffer: EpisodeBuffer, episode_of_window: np.ndarray
-                    ) -> tuple[torch.Tensor, torch.Tensor]:
+def _member_windows(
+    parts: list[EpisodeBuffer], buffer: EpisodeBuffer, episode_of_window: np.ndarray
+) -> tuple[torch.Tensor, torch.Tensor]:
     """For each member, the windows of its part of ``buffer``'s episodes: (K, M) window indices padded with the
     first, and (K, M) weights, 1 for a window of the part and 0 for padding."""
     position = {id(episode): i for i, episode in enumerate(buffer.episodes)}
@@ -191,14 +208,15 @@ def _member_windows(parts: list[EpisodeBuffer], buffer: EpisodeBuffer, episode_o
     index = torch.zeros(len(parts), width, dtype=torch.long)
     weight = torch.zeros(len(parts), width)
     for k, c in enumerate(chosen):
-        index[k, :len(c)] = torch.as_tensor(c)
-        index[k, len(c):] = int(c[0])
-        weight[k, :len(c)] = 1.0
+        index[k, : len(c)] = torch.as_tensor(c)
+        index[k, len(c) :] = int(c[0])
+        weight[k, : len(c)] = 1.0
     return index, weight
 
 
-def _split(buffer: EpisodeBuffer, settings: FitSettings, rng: np.random.Generator
-           ) -> tuple[EpisodeBuffer, EpisodeBuffer]:
+def _split(
+    buffer: EpisodeBuffer, settings: FitSettings, rng: np.random.Generator
+) -> tuple[EpisodeBuffer, EpisodeBuffer]:
     """Hold out ⌊holdout · E⌋ of the E episodes, among those that can be unfolded and never the longest (training
     keeps a full window).
 
@@ -212,5 +230,7 @@ def _split(buffer: EpisodeBuffer, settings: FitSettings, rng: np.random.Generato
     if count == 0:
         return buffer, EpisodeBuffer()
     chosen = {id(candidates[i]) for i in rng.permutation(len(candidates))[:count]}
-    return (EpisodeBuffer([e for e in buffer.episodes if id(e) not in chosen]),
-            EpisodeBuffer([e for e in buffer.episodes if id(e) in chosen]))
+    return (
+        EpisodeBuffer([e for e in buffer.episodes if id(e) not in chosen]),
+        EpisodeBuffer([e for e in buffer.episodes if id(e) in chosen]),
+    )

@@ -47,18 +47,40 @@ class ImaginedWorld:
     disagreement_penalty: float = 0.0
 
     @classmethod
-    def of(cls, model: LearnedModel, start_observations: np.ndarray, action_space: spaces.Space, horizon: int,
-           known_reward: RewardFunction | None = None, disagreement_penalty: float = 0.0) -> ImaginedWorld:
+    def of(
+        cls,
+        model: LearnedModel,
+        start_observations: np.ndarray,
+        action_space: spaces.Space,
+        horizon: int,
+        known_reward: RewardFunction | None = None,
+        disagreement_penalty: float = 0.0,
+    ) -> ImaginedWorld:
         state = {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
-        return cls(type(model), model.settings(), state, np.asarray(start_observations, dtype=np.float32),
-                   action_space, horizon, known_reward, disagreement_penalty)
+        return cls(
+            type(model),
+            model.settings(),
+            state,
+            np.asarray(start_observations, dtype=np.float32),
+            action_space,
+            horizon,
+            known_reward,
+            disagreement_penalty,
+        )
 
     def make(self, num_envs: int) -> ImaginedEnv:
         with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace
             model = self.model_type(**self.model_settings)
         model.load_state_dict(self.model_state)
-        return ImaginedEnv(model, self.start_observations, num_envs, self.action_space, self.horizon,
-                           self.known_reward, self.disagreement_penalty)
+        return ImaginedEnv(
+            model,
+            self.start_observations,
+            num_envs,
+            self.action_space,
+            self.horizon,
+            self.known_reward,
+            self.disagreement_penalty,
+        )
 
 
 class ImaginedEnv(VectorEnv):
@@ -75,8 +97,16 @@ class ImaginedEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, model: LearnedModel, start_observations: np.ndarray, num_envs: int, action_space: spaces.Space,
-                 horizon: int, known_reward: RewardFunction | None = None, disagreement_penalty: float = 0.0):
+    def __init__(
+        self,
+        model: LearnedModel,
+        start_observations: np.ndarray,
+        num_envs: int,
+        action_space: spaces.Space,
+        horizon: int,
+        known_reward: RewardFunction | None = None,
+        disagreement_penalty: float = 0.0,
+    ):
         starts = np.asarray(start_observations, dtype=np.float32)
         if starts.ndim != 2 or len(starts) == 0:
             raise ValueError(f"start_observations must be a non-empty (S, o) array, got shape {starts.shape}")
@@ -94,7 +124,7 @@ class ImaginedEnv(VectorEnv):
         self.action_space = batch_space(action_space, num_envs)
         self._rng = np.random.default_rng()
         self._observation: torch.Tensor | None = None
-        self._state: list[list[torch.Tensor]] = []
+        self._state: list[torch.Tensor] = []
         self._member = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self._envs = torch.arange(num_envs, device=self.device)
         self._observed = torch.ones(num_envs, dtype=torch.bool, device=self.device)  # o_t is a real start
@@ -156,9 +186,11 @@ class ImaginedEnv(VectorEnv):
     def _restart(self, envs: np.ndarray) -> None:
         starts, members = self._draw(self._rng, len(envs))
         index = torch.as_tensor(envs, device=self.device)
+        assert self._observation is not None  # restarts follow a reset
         # out of place: the observations handed out by the previous step must not change
-        self._observation = self._observation.index_put((index,), self._starts[torch.as_tensor(starts,
-                                                                                               device=self.device)])
+        self._observation = self._observation.index_put(
+            (index,), self._starts[torch.as_tensor(starts, device=self.device)]
+        )
         self._member[index] = torch.as_tensor(members, device=self.device)
         self._observed[index] = True
         self.elapsed_steps[envs] = 0

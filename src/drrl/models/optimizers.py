@@ -43,8 +43,10 @@ class NesterovAG(torch.optim.Optimizer):
     @torch.no_grad()
     def step(self, closure=None):
         if closure is None:
-            raise RuntimeError("NesterovAG.step needs a closure that zeroes the gradients, recomputes the loss and "
-                               "calls backward(): 3.24 takes the gradient at the look-ahead point θ + μΔ")
+            raise RuntimeError(
+                "NesterovAG.step needs a closure that zeroes the gradients, recomputes the loss and "
+                "calls backward(): 3.24 takes the gradient at the look-ahead point θ + μΔ"
+            )
         self._shift(+1.0)
         with torch.enable_grad():
             loss = closure()
@@ -75,16 +77,23 @@ class AdamLambda(torch.optim.Optimizer):
     is ``torch.optim.Adam``. Defaults are the thesis's: α = 0.001, β1 = 0.9, β2 = 0.999, ε = 1e−8, λ = 1 − 1e−8.
     """
 
-    def __init__(self, params: Iterable[torch.Tensor], lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999),
-                 eps: float = 1e-8, lambda_: float = 1 - 1e-8):
+    def __init__(
+        self,
+        params: Iterable[torch.Tensor],
+        lr: float = 1e-3,
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-8,
+        lambda_: float = 1 - 1e-8,
+    ):
         if not (math.isfinite(lr) and lr > 0):
             raise ValueError(f"AdamLambda lr must be a positive finite number, got {lr}")
         for name, value in (("beta1", betas[0]), ("beta2", betas[1]), ("lambda_", lambda_)):
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"AdamLambda {name} must be in [0, 1], got {value}")
         if betas[0] == 1.0 or betas[1] == 1.0:
-            raise ValueError(f"AdamLambda betas must be below 1 (their bias corrections divide by 1 − β^t), "
-                             f"got {betas}")
+            raise ValueError(
+                f"AdamLambda betas must be below 1 (their bias corrections divide by 1 − β^t), got {betas}"
+            )
         super().__init__(params, dict(lr=lr, betas=tuple(betas), eps=eps, lambda_=lambda_))
 
     @torch.no_grad()

@@ -26,23 +26,35 @@ def k_step_errors(model: WorldModel, episodes: EpisodeBuffer, max_k: int) -> np.
     windows = episodes.windows(1, max_k - 1).to(model.device)
     with torch.no_grad():
         prediction = model.unfold(windows.observations, windows.actions, observed_steps=1)
-        error = ((prediction.observations - windows.next_observations)
-                 / model.change_scale[:, None, None]).square().mean(-1).sqrt()  # (K, W, L)
+        error = (
+            ((prediction.observations - windows.next_observations) / model.change_scale[:, None, None])
+            .square()
+            .mean(-1)
+            .sqrt()
+        )  # (K, W, L)
     inside = windows.mask.bool()
     return np.array([float(error[:, inside[:, k], k].median()) for k in range(max_k)])
 
 
 def variants(overshoot: int) -> dict[str, dict]:
     """The models compared: finite unfolding alone, overshooting as 3.5 (zero inputs), and with consistency."""
-    return {"finite unfolding only (m = 0)": dict(overshoot=0, future_inputs="predictions"),
-            f"overshooting m = {overshoot}, zero inputs (3.5)": dict(overshoot=overshoot, future_inputs="zeros"),
-            f"overshooting m = {overshoot} + dynamical consistency": dict(overshoot=overshoot,
-                                                                         future_inputs="predictions")}
+    return {
+        "finite unfolding only (m = 0)": dict(overshoot=0, future_inputs="predictions"),
+        f"overshooting m = {overshoot}, zero inputs (3.5)": dict(overshoot=overshoot, future_inputs="zeros"),
+        f"overshooting m = {overshoot} + dynamical consistency": dict(overshoot=overshoot, future_inputs="predictions"),
+    }
 
 
-def model_quality_report(training: EpisodeBuffer, held_out: EpisodeBuffer, path: Path | str | None = None,
-                         max_k: int = 30, settings: FitSettings = FitSettings(), hidden=(64,), kind: str = "rnn",
-                         seed: int = 0) -> dict[str, np.ndarray]:
+def model_quality_report(
+    training: EpisodeBuffer,
+    held_out: EpisodeBuffer,
+    path: Path | str | None = None,
+    max_k: int = 30,
+    settings: FitSettings = FitSettings(),
+    hidden=(64,),
+    kind: str = "rnn",
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
     """Fit each of :func:`variants` on ``training`` and return (and plot to ``path``, a PNG) its k-step errors on
     ``held_out``, k = 1..max_k."""
     observation_size = training.episodes[0].observations.shape[1]
@@ -54,8 +66,12 @@ def model_quality_report(training: EpisodeBuffer, held_out: EpisodeBuffer, path:
         fit(model, training, dataclasses.replace(settings, overshoot=variant["overshoot"]), seed=seed)
         curves[label] = k_step_errors(model, held_out, max_k)
     if path is not None:
-        plot_k_step_errors(curves, Path(path), f"{kind} world model {'×'.join(map(str, hidden))}, "
-                                               f"{len(training)} training / {len(held_out)} held-out episodes")
+        plot_k_step_errors(
+            curves,
+            Path(path),
+            f"{kind} world model {'×'.join(map(str, hidden))}, "
+            f"{len(training)} training / {len(held_out)} held-out episodes",
+        )
     return curves
 
 

@@ -48,8 +48,9 @@ episode (``drrl.models.imagined``). K = 1 is the thesis's single model.
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import nn
@@ -62,8 +63,9 @@ FUTURE_INPUTS = ("predictions", "zeros")
 GATES = {"rnn": 1, "lstm": 4}  # blocks of pre-activations per layer: the state, or the LSTM's i, f, g, o
 
 
-def _lstm_cell(pre_activation: torch.Tensor, memory: tuple[torch.Tensor, torch.Tensor]
-               ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+def _lstm_cell(
+    pre_activation: torch.Tensor, memory: tuple[torch.Tensor, torch.Tensor]
+) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
     """An LSTM layer from its pre-activation (gates i, f, g, o, as nn.LSTMCell) and memory (h, c): (h, (h, c))."""
     input_gate, forget_gate, cell_input, output_gate = pre_activation.chunk(4, dim=-1)
     cell = torch.sigmoid(forget_gate) * memory[1] + torch.sigmoid(input_gate) * torch.tanh(cell_input)
@@ -71,7 +73,7 @@ def _lstm_cell(pre_activation: torch.Tensor, memory: tuple[torch.Tensor, torch.T
     return hidden, (hidden, cell)
 
 
-CELLS = {"rnn": elman_cell, "lstm": _lstm_cell}
+CELLS: dict[str, Callable] = {"rnn": elman_cell, "lstm": _lstm_cell}
 
 
 class WorldModel(nn.Module):
@@ -85,8 +87,22 @@ class WorldModel(nn.Module):
         members: K, the ensemble's size; every output has a leading dimension K.
     """
 
-    def __init__(self, observation_size: int, action_size: int, hidden: Sequence[int] = (64,), kind: str = "rnn",
-                 future_inputs: str = "predictions", members: int = 1):
+    # buffers: the data's scales, per member (K, o) or (K,), set by :meth:`set_scales`
+    observation_mean: torch.Tensor
+    observation_scale: torch.Tensor
+    change_scale: torch.Tensor
+    reward_mean: torch.Tensor
+    reward_scale: torch.Tensor
+
+    def __init__(
+        self,
+        observation_size: int,
+        action_size: int,
+        hidden: Sequence[int] = (64,),
+        kind: str = "rnn",
+        future_inputs: str = "predictions",
+        members: int = 1,
+    ):
         super().__init__()
         if kind not in MODEL_KINDS:
             raise ValueError(f"unknown model kind {kind!r}; choose one of: {', '.join(MODEL_KINDS)}")
@@ -102,8 +118,9 @@ class WorldModel(nn.Module):
         widths = (observation_size + action_size, *hidden)
         gates = GATES[kind]
         # W, B and b of every layer (3.4), and the read-out A, c (3.7); torch's initialisation, U(±1/√width)
-        self.input_weights = nn.ParameterList(_uniform(members, fan_in, gates * width, width)
-                                              for fan_in, width in zip(widths[:-1], widths[1:]))
+        self.input_weights = nn.ParameterList(
+            _uniform(members, fan_in, gates * width, width) for fan_in, width in itertools.pairwise(widths)
+        )
         self.recurrent_weights = nn.ParameterList(_uniform(members, width, gates * width, width) for width in hidden)
         self.biases = nn.ParameterList(_uniform(members, 1, gates * width, width) for width in hidden)
         self.readout_weight = _uniform(members, hidden[-1], observation_size + 2, hidden[-1])  # change, reward, end
@@ -120,9 +137,14 @@ class WorldModel(nn.Module):
 
     def settings(self) -> dict:
         """The constructor's arguments: ``WorldModel(**model.settings())`` builds a model of the same shape."""
-        return {"observation_size": self.observation_size, "action_size": self.action_size,
-                "hidden": self.hidden, "kind": self.kind, "future_inputs": self.future_inputs,
-                "members": self.members}
+        return {
+            "observation_size": self.observation_size,
+            "action_size": self.action_size,
+            "hidden": self.hidden,
+            "kind": self.kind,
+            "future_inputs": self.future_inputs,
+            "members": self.members,
+        }
 
     @property
     def device(self) -> torch.device:
@@ -136,24 +158,27 @@ class WorldModel(nn.Module):
     def initial_state(self, batch: int) -> list[torch.Tensor]:
         """Zero hidden states (K, batch, width): [s¹, s², …] for "rnn", [h¹, c¹, h², c², …] for "lstm"."""
         per_layer = 1 if self.kind == "rnn" else 2
-        return [torch.zeros(self.members, batch, width, device=self.device)
-                for width in self.hidden for _ in range(per_layer)]
+        return [
+            torch.zeros(self.members, batch, width, device=self.device)
+            for width in self.hidden
+            for _ in range(per_layer)
+        ]
 
     def _advance(self, x: torch.Tensor, state: list[torch.Tensor]) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """The stacked layers on network inputs x (K, B, ·) = (normalised o_t, a_t): read-outs y_t (3.7), new
         state. Each layer's cell is the recurrent policies' own (``drrl.policies.recurrent``)."""
         cell, memories = CELLS[self.kind], 1 if self.kind == "rnn" else 2
         new_state = []
-        for i, (w, b, bias) in enumerate(zip(self.input_weights, self.recurrent_weights, self.biases)):
-            memory = tuple(state[memories * i: memories * (i + 1)])
+        for i, (w, b, bias) in enumerate(zip(self.input_weights, self.recurrent_weights, self.biases, strict=True)):
+            memory = tuple(state[memories * i : memories * (i + 1)])
             x, memory = cell(torch.baddbmm(bias, x, w) + torch.bmm(memory[0], b), memory)
             new_state += memory
         return torch.baddbmm(self.readout_bias, x, self.readout_weight), new_state
 
-
     def _normalise(self, observation: torch.Tensor) -> torch.Tensor:
-        return (observation - _per_member(self.observation_mean, observation)) / _per_member(self.observation_scale,
-                                                                                             observation)
+        return (observation - _per_member(self.observation_mean, observation)) / _per_member(
+            self.observation_scale, observation
+        )
 
     def _next_observation(self, observation: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         change = y[..., :-2]
@@ -162,20 +187,29 @@ class WorldModel(nn.Module):
     def _heads(self, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Reward and end probability from read-outs y."""
         reward = y[..., -2]
-        return (reward * _per_member(self.reward_scale, reward) + _per_member(self.reward_mean, reward),
-                torch.sigmoid(y[..., -1]))
+        return (
+            reward * _per_member(self.reward_scale, reward) + _per_member(self.reward_mean, reward),
+            torch.sigmoid(y[..., -1]),
+        )
 
     def _per_member_inputs(self, tensor: torch.Tensor, per_member_ndim: int) -> torch.Tensor:
         """``tensor`` with its leading member dimension K, added (every member reads the same) if it lacks one."""
         if tensor.dim() == per_member_ndim:
             return tensor.expand(self.members, *tensor.shape)
         if tensor.dim() != per_member_ndim + 1 or tensor.shape[0] != self.members:
-            raise ValueError(f"expected a tensor of {per_member_ndim} dimensions, or {per_member_ndim + 1} with "
-                             f"{self.members} member(s) first, got shape {tuple(tensor.shape)}")
+            raise ValueError(
+                f"expected a tensor of {per_member_ndim} dimensions, or {per_member_ndim + 1} with "
+                f"{self.members} member(s) first, got shape {tuple(tensor.shape)}"
+            )
         return tensor
 
-    def step(self, observation: torch.Tensor, action: torch.Tensor, state: list[torch.Tensor],
-             observed: bool | torch.Tensor = True) -> tuple[Prediction, list[torch.Tensor]]:
+    def step(
+        self,
+        observation: torch.Tensor,
+        action: torch.Tensor,
+        state: list[torch.Tensor],
+        observed: bool | torch.Tensor = True,
+    ) -> tuple[Prediction, list[torch.Tensor]]:
         """One unfolded step for a batch: o_t (B, o) and a_t (B, a), read by every member, or (K, B, ·) each its
         own → every member's prediction of step t+1 (K, B, ·), new state.
 
@@ -206,10 +240,12 @@ class WorldModel(nn.Module):
         observations, actions = self._per_member_inputs(observations, 3), self._per_member_inputs(actions, 3)
         length = actions.shape[2]
         if not 1 <= observed_steps <= length:
-            raise ValueError(f"observed_steps must be in [1, {length}] for windows of {length} steps, "
-                             f"got {observed_steps}")
-        inputs = torch.cat([self._normalise(observations[:, :, :observed_steps]),
-                            actions[:, :, :observed_steps]], dim=-1)
+            raise ValueError(
+                f"observed_steps must be in [1, {length}] for windows of {length} steps, got {observed_steps}"
+            )
+        inputs = torch.cat(
+            [self._normalise(observations[:, :, :observed_steps]), actions[:, :, :observed_steps]], dim=-1
+        )
         state = self.initial_state(actions.shape[1])
         outputs, predicted = [], []
         for t in range(length):
@@ -217,8 +253,9 @@ class WorldModel(nn.Module):
                 x, base = inputs[:, :, t], observations[:, :, t]
             else:
                 fed = self._normalise(base)
-                x = torch.cat([fed if self.future_inputs == "predictions" else torch.zeros_like(fed),
-                               actions[:, :, t]], dim=-1)
+                x = torch.cat(
+                    [fed if self.future_inputs == "predictions" else torch.zeros_like(fed), actions[:, :, t]], dim=-1
+                )
             y, state = self._advance(x, state)
             base = self._next_observation(base, y)
             outputs.append(y)
@@ -239,8 +276,15 @@ class WorldModel(nn.Module):
         return f"{self.kind} {layers}, future inputs: {self.future_inputs}, {self.members} member(s)"
 
 
-def window_losses(model: WorldModel, prediction: Prediction, next_observations: torch.Tensor, rewards: torch.Tensor,
-                  ends: torch.Tensor, mask: torch.Tensor, learn_reward: bool = True) -> torch.Tensor:
+def window_losses(
+    model: WorldModel,
+    prediction: Prediction,
+    next_observations: torch.Tensor,
+    rewards: torch.Tensor,
+    ends: torch.Tensor,
+    mask: torch.Tensor,
+    learn_reward: bool = True,
+) -> torch.Tensor:
     """(K, B) each member's squared error summed over the unfolded steps of each window (3.12–3.13, squared).
 
     Observation errors are measured in units of the data's per-step change (so a k-step error is comparable to k
@@ -248,17 +292,26 @@ def window_losses(model: WorldModel, prediction: Prediction, next_observations: 
     an episode's end. With ``learn_reward=False`` (the task's reward is known in closed form) the reward and end
     heads are not trained. The targets are (B, L, ·), the same for every member, or (K, B, L, ·).
     """
-    error = ((prediction.observations - next_observations)
-             / _per_member(model.change_scale, prediction.observations)).square().sum(-1)
+    error = (
+        ((prediction.observations - next_observations) / _per_member(model.change_scale, prediction.observations))
+        .square()
+        .sum(-1)
+    )
     if learn_reward:
         error = error + ((prediction.rewards - rewards) / _per_member(model.reward_scale, prediction.rewards)).square()
         error = error + (prediction.ends - ends).square()
     return (error * mask).sum(-1)
 
 
-def unfolding_loss(model: WorldModel, prediction: Prediction, next_observations: torch.Tensor,
-                   rewards: torch.Tensor, ends: torch.Tensor, mask: torch.Tensor, learn_reward: bool = True
-                   ) -> torch.Tensor:
+def unfolding_loss(
+    model: WorldModel,
+    prediction: Prediction,
+    next_observations: torch.Tensor,
+    rewards: torch.Tensor,
+    ends: torch.Tensor,
+    mask: torch.Tensor,
+    learn_reward: bool = True,
+) -> torch.Tensor:
     """(K,) each member's :func:`window_losses` averaged over the windows."""
     return window_losses(model, prediction, next_observations, rewards, ends, mask, learn_reward).mean(-1)
 

@@ -16,8 +16,12 @@ from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS
 
 REWARD_MODES = ("auto", "known", "learned")
 MAX_WIDTH = 65_536  # units in a layer: wider is a typo, and would not fit in memory with its neighbours
-CHOICES = {"model_kind": MODEL_KINDS, "future_inputs": FUTURE_INPUTS, "reward": REWARD_MODES,
-           "model_optimizer": MODEL_OPTIMIZERS}  # string settings and what each allows
+CHOICES = {
+    "model_kind": MODEL_KINDS,
+    "future_inputs": FUTURE_INPUTS,
+    "reward": REWARD_MODES,
+    "model_optimizer": MODEL_OPTIMIZERS,
+}  # string settings and what each allows
 
 # TrainConfig values for a model-based run: 20 real episodes; PGPE in the model with 20 candidates × 10 imagined
 # episodes (many imagined episodes per candidate are free, and average out the start states).
@@ -36,14 +40,20 @@ class ModelBasedSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    initial_episodes: int = Field(2, ge=1, le=1_000_000,
-                                  description="real episodes of the first iteration (explorers μ ± ε)")
-    episodes_per_iteration: int = Field(2, ge=1, le=1_000_000,
-                                        description="real episodes of every later iteration (μ, μ ± ε)")
+    initial_episodes: int = Field(
+        2, ge=1, le=1_000_000, description="real episodes of the first iteration (explorers μ ± ε)"
+    )
+    episodes_per_iteration: int = Field(
+        2, ge=1, le=1_000_000, description="real episodes of every later iteration (μ, μ ± ε)"
+    )
     generations: int = Field(40, ge=1, le=1_000_000, description="most PGPE generations inside the model per iteration")
-    patience: int = Field(10, ge=1, le=1_000_000,
-                          description="stop the in-model search when the candidates' mean imagined return has not "
-                                      "improved over this many generations")
+    patience: int = Field(
+        10,
+        ge=1,
+        le=1_000_000,
+        description="stop the in-model search when the candidates' mean imagined return has not "
+        "improved over this many generations",
+    )
     model_kind: str = "rnn"
     hidden: tuple[int, ...] = Field((64,), min_length=1, description="widths of the stacked layers")
     ensemble_size: int = Field(1, ge=1, le=1000)
@@ -56,13 +66,17 @@ class ModelBasedSettings(BaseModel):
     model_lr: float = Field(1e-2, gt=0, le=1e3)
     fit_batch_size: int = Field(128, ge=1, le=1_000_000)
     fit_updates: int = Field(1000, ge=1, le=10**7, description="most gradient steps of the first fit")
-    refit_updates: int = Field(400, ge=1, le=10**7, description="most gradient steps of every later fit, which "
-                                                                "starts from the previous model's weights")
+    refit_updates: int = Field(
+        400,
+        ge=1,
+        le=10**7,
+        description="most gradient steps of every later fit, which starts from the previous model's weights",
+    )
 
     @field_validator(*CHOICES)
     @classmethod
     def _known_choice(cls, value: str, info: ValidationInfo) -> str:
-        return one_of(value, CHOICES[info.field_name])
+        return one_of(value, CHOICES[str(info.field_name)])
 
     @field_validator("hidden")
     @classmethod
@@ -73,10 +87,16 @@ class ModelBasedSettings(BaseModel):
 
     def fit_settings(self, first: bool, learn_reward: bool) -> FitSettings:
         """How to fit the model in the first iteration (``first``) or a later one."""
-        return FitSettings(unfold=self.unfold, overshoot=self.overshoot, learn_reward=learn_reward,
-                           optimizer=self.model_optimizer, lr=self.model_lr, batch_size=self.fit_batch_size,
-                           max_updates=self.fit_updates if first else self.refit_updates,
-                           validate_every=min(100, self.fit_updates if first else self.refit_updates))
+        return FitSettings(
+            unfold=self.unfold,
+            overshoot=self.overshoot,
+            learn_reward=learn_reward,
+            optimizer=self.model_optimizer,
+            lr=self.model_lr,
+            batch_size=self.fit_batch_size,
+            max_updates=self.fit_updates if first else self.refit_updates,
+            validate_every=min(100, self.fit_updates if first else self.refit_updates),
+        )
 
 
 def one_of(value: str, choices: tuple[str, ...]) -> str:

@@ -36,7 +36,7 @@ class Policy(ABC):
         if params.ndim != 2 or params.shape[1] != self.num_params:
             raise ValueError(f"params must have shape (P, {self.num_params}), got {tuple(params.shape)}")
         pieces = torch.split(params, self.sizes, dim=1)
-        return [piece.reshape(params.shape[0], *shape) for piece, shape in zip(pieces, self.shapes)]
+        return [piece.reshape(params.shape[0], *shape) for piece, shape in zip(pieces, self.shapes, strict=True)]
 
     def fold_input(self, params: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
         """Parameters (P, n) that act on an observation o as ``params`` act on (o − mean) / std: the first layer's

@@ -16,15 +16,22 @@ from drrl.policies.base import Policy
 class FeedForward(Policy):
     """A dense stack evaluated for P candidates × B environments with one batched product per layer."""
 
-    def __init__(self, observation_size: int, action_size: int, hidden: Sequence[int] = (), *,
-                 activation: str = "tanh", bias: bool = True):
+    def __init__(
+        self,
+        observation_size: int,
+        action_size: int,
+        hidden: Sequence[int] = (),
+        *,
+        activation: str = "tanh",
+        bias: bool = True,
+    ):
         if activation not in ("tanh", "identity"):
             raise ValueError(f"activation must be 'tanh' or 'identity', got {activation!r}")
         self.widths = [observation_size, *hidden, action_size]
         self.activation = activation
         self.bias = self.input_bias = bias
         shapes: list[tuple[int, ...]] = []
-        for fan_in, fan_out in zip(self.widths[:-1], self.widths[1:]):
+        for fan_in, fan_out in zip(self.widths[:-1], self.widths[1:], strict=True):
             shapes.append((fan_in, fan_out))
             if bias:
                 shapes.append((1, fan_out))
@@ -47,7 +54,7 @@ class FeedForward(Policy):
         """
         pieces = []
         output_layer = len(self.widths) - 2
-        for layer, (fan_in, fan_out) in enumerate(zip(self.widths[:-1], self.widths[1:])):
+        for layer, (fan_in, fan_out) in enumerate(zip(self.widths[:-1], self.widths[1:], strict=True)):
             if layer == output_layer:
                 pieces.append(torch.zeros(fan_in * fan_out))
             else:

@@ -52,7 +52,9 @@ SPECTRAL_RADIUS = 0.5  # of the recurrent block at the initial centre: a fading 
 FORGET_BIAS = 1.0  # the forget gate starts mostly open (sigmoid(1) ≈ 0.73): memory persists from the start
 
 
-def elman_cell(pre_activation: torch.Tensor, memory: tuple[torch.Tensor]) -> tuple[torch.Tensor, tuple[torch.Tensor]]:
+def elman_cell(
+    pre_activation: torch.Tensor, memory: tuple[torch.Tensor, ...]
+) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
     """An Elman layer (3.4) from its pre-activation z_t = W x_t + B h_{t−1} + b: (h_t, (h_t,)). The state-space
     world models (drrl.models.recurrent) step their layers with it too."""
     hidden = torch.tanh(pre_activation)
@@ -75,15 +77,17 @@ class Recurrent(Policy):
             raise ValueError(f"a recurrent policy needs one or more positive layer widths, got {list(hidden)}")
         self.inputs = [observation_size, *self.hidden[:-1]]
         shapes: list[tuple[int, ...]] = []
-        for fan_in, width in zip(self.inputs, self.hidden):
+        for fan_in, width in zip(self.inputs, self.hidden, strict=True):
             shapes += [(fan_in + width, self.gates * width), (1, self.gates * width)]
         shapes += [(self.hidden[-1], action_size), (1, action_size)]
         super().__init__(observation_size, action_size, shapes)
 
     def initial_state(self, population: int, batch: int, device: torch.device | str = "cpu") -> State:
         """Zero memory for P × B fresh episodes: a new tensor per layer and memory, shared with nothing."""
-        return tuple(tuple(torch.zeros(population, batch, width, device=device) for _ in range(self.memories))
-                     for width in self.hidden)
+        return tuple(
+            tuple(torch.zeros(population, batch, width, device=device) for _ in range(self.memories))
+            for width in self.hidden
+        )
 
     def act(self, weights: list[torch.Tensor], obs: torch.Tensor, state: State) -> tuple[torch.Tensor, State]:
         """One step of every layer, bottom to top, then the read-out; returns (raw action (P, B, a), new state)."""
@@ -117,10 +121,12 @@ class Recurrent(Policy):
         around this centre without destroying it (benchmarks/partially_observed.py uses 0.2 and 0.3).
         """
         pieces = []
-        for fan_in, width in zip(self.inputs, self.hidden):
+        for fan_in, width in zip(self.inputs, self.hidden, strict=True):
             inputs = torch.randn(fan_in, self.gates * width, generator=generator) / fan_in**0.5
-            recurrent = torch.cat([_with_spectral_radius(torch.randn(width, width, generator=generator))
-                                   for _ in range(self.gates)], dim=1)
+            recurrent = torch.cat(
+                [_with_spectral_radius(torch.randn(width, width, generator=generator)) for _ in range(self.gates)],
+                dim=1,
+            )
             pieces += [inputs.flatten(), recurrent.flatten(), self.initial_bias(width)]
         pieces += [torch.zeros(self.hidden[-1] * self.action_size), torch.zeros(self.action_size)]
         return torch.cat(pieces)

@@ -8,8 +8,10 @@ from drrl.policies.feedforward import linear, mlp, multilinear
 from drrl.policies.recurrent import lstm, rnn
 
 MAX_WIDTH = 65_536
-ACCEPTED_FORMS = ("linear, linear:nobias, multilinear:W[,W...], mlp:W[,W...], rnn:W[,W...], lstm:W[,W...] "
-                  f"(W = a layer width from 1 to {MAX_WIDTH})")
+ACCEPTED_FORMS = (
+    "linear, linear:nobias, multilinear:W[,W...], mlp:W[,W...], rnn:W[,W...], lstm:W[,W...] "
+    f"(W = a layer width from 1 to {MAX_WIDTH})"
+)
 POLICY_KINDS = ("linear", "multilinear", "mlp", "rnn", "lstm")
 LAYERED = {"multilinear": multilinear, "mlp": mlp, "rnn": rnn, "lstm": lstm}  # kinds that take layer widths
 

@@ -22,5 +22,14 @@ def make_backend(name: str, workload: Workload, address: str | None = None, work
     raise ValueError(f"unknown backend {name!r}; choose one of: {', '.join(BACKENDS)}")
 
 
-__all__ = ["BACKENDS", "Backend", "Evaluation", "LocalBackend", "NonFiniteOutput", "Workload", "episode_seeds",
-           "evaluate", "make_backend"]
+__all__ = [
+    "BACKENDS",
+    "Backend",
+    "Evaluation",
+    "LocalBackend",
+    "NonFiniteOutput",
+    "Workload",
+    "episode_seeds",
+    "evaluate",
+    "make_backend",
+]

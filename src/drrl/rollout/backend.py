@@ -9,6 +9,7 @@ ran, so every backend returns the same numbers bit for bit. The workload names i
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -25,7 +26,7 @@ class Workload:
     cut at ``max_steps``; with ``moments``, the observations' sums come back too."""
 
     policy: Policy
-    env: EnvSource | str
+    env: EnvSource  # a str is taken as a registered id: RegisteredEnv(env)
     popsize: int
     episodes: int
     max_steps: int | None = None
@@ -53,4 +54,4 @@ def chunk_bounds(popsize: int, chunks: int) -> list[tuple[int, int]]:
     """``chunks`` consecutive (start, stop) ranges covering ``range(popsize)``, sizes differing by at most one."""
     size, extra = divmod(popsize, chunks)
     edges = [i * size + min(i, extra) for i in range(chunks + 1)]
-    return list(zip(edges[:-1], edges[1:]))
+    return list(itertools.pairwise(edges))

@@ -9,6 +9,7 @@ A NaN or infinite observation, reward or return of a running episode stops the r
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import torch
@@ -42,10 +43,13 @@ class Evaluation:
     def concat(parts: list[Evaluation]) -> Evaluation:
         """One evaluation of all candidates from evaluations of consecutive chunks of them."""
         moments = [part.moments for part in parts]
-        return Evaluation(episode_returns=torch.cat([part.episode_returns for part in parts]),
-                          terminated=torch.cat([part.terminated for part in parts]),
-                          steps=sum(part.steps for part in parts), episodes=sum(part.episodes for part in parts),
-                          moments=None if any(m is None for m in moments) else Moments.concat(moments))
+        return Evaluation(
+            episode_returns=torch.cat([part.episode_returns for part in parts]),
+            terminated=torch.cat([part.terminated for part in parts]),
+            steps=sum(part.steps for part in parts),
+            episodes=sum(part.episodes for part in parts),
+            moments=None if None in moments else Moments.concat(cast(list[Moments], moments)),
+        )
 
 
 def episode_seeds(seed: int, population: int, episodes: int) -> list[int]:
@@ -59,8 +63,15 @@ def episode_seeds(seed: int, population: int, episodes: int) -> list[int]:
 
 
 @torch.inference_mode()
-def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int = 1, seed: int | None = None,
-             max_steps: int | None = None, moments: bool = False) -> Evaluation:
+def evaluate(
+    policy: Policy,
+    params: torch.Tensor,
+    env: VectorEnv,
+    episodes: int = 1,
+    seed: int | None = None,
+    max_steps: int | None = None,
+    moments: bool = False,
+) -> Evaluation:
     """Run each of the P candidates in ``params`` (P, n) for ``episodes`` episodes on ``env`` at once.
 
     ``max_steps`` cuts episodes that have not ended by then (for envs without a time limit of their own);
@@ -69,13 +80,14 @@ def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int
     population = params.shape[0]
     slots = population * episodes
     if env.num_envs != slots:
-        raise ValueError(f"env has {env.num_envs} sub-environments; {population} candidates × {episodes} episodes "
-                         f"need {slots}")
+        raise ValueError(
+            f"env has {env.num_envs} sub-environments; {population} candidates × {episodes} episodes need {slots}"
+        )
     action_map = ActionMap(env.single_action_space)
     weights = policy.unflatten(params)
     state = policy.initial_state(population, episodes, params.device)
     seeds = None if seed is None else episode_seeds(seed, population, episodes)
-    obs, _ = env.reset(seed=seeds)
+    obs, _ = env.reset(seed=seeds)  # type: ignore[arg-type]  # drrl's batches take a seed per sub-env
     _check_finite("observation", obs, np.ones(slots, dtype=bool), 0, episodes)
     returns = np.zeros(slots)
     running = np.ones(slots, dtype=bool)
@@ -98,9 +110,13 @@ def evaluate(policy: Policy, params: torch.Tensor, env: VectorEnv, episodes: int
         t += 1
     _check_finite("return", returns, np.ones(slots, dtype=bool), t, episodes)  # finite rewards can still overflow
     episode_returns = torch.as_tensor(returns, dtype=torch.float64).view(population, episodes)
-    return Evaluation(episode_returns=episode_returns,
-                      terminated=torch.as_tensor(terminated_slots).view(population, episodes),
-                      steps=steps, episodes=slots, moments=seen)
+    return Evaluation(
+        episode_returns=episode_returns,
+        terminated=torch.as_tensor(terminated_slots).view(population, episodes),
+        steps=steps,
+        episodes=slots,
+        moments=seen,
+    )
 
 
 def _check_finite(what: str, values: np.ndarray, running: np.ndarray, step: int, episodes: int) -> None:
@@ -111,6 +127,8 @@ def _check_finite(what: str, values: np.ndarray, running: np.ndarray, step: int,
     bad = np.flatnonzero(running & ~finite)
     if bad.size:
         slot = int(bad[0])
-        raise NonFiniteOutput(f"the environment returned a non-finite {what} {np.asarray(values)[slot]} at step "
-                              f"{step} of candidate {slot // episodes}'s episode {slot % episodes} "
-                              f"({bad.size} slot(s) affected)")
+        raise NonFiniteOutput(
+            f"the environment returned a non-finite {what} {np.asarray(values)[slot]} at step "
+            f"{step} of candidate {slot // episodes}'s episode {slot % episodes} "
+            f"({bad.size} slot(s) affected)"
+        )

@@ -27,8 +27,9 @@ class LocalBackend:
 
     def evaluate(self, params: torch.Tensor, seed: int) -> Evaluation:
         work = self.workload
-        return evaluate(work.policy, params, self.env, work.episodes, seed=seed, max_steps=work.max_steps,
-                        moments=work.moments)
+        return evaluate(
+            work.policy, params, self.env, work.episodes, seed=seed, max_steps=work.max_steps, moments=work.moments
+        )
 
     def close(self) -> None:
         self.env.close()

@@ -37,13 +37,17 @@ class Moments:
 
     @staticmethod
     def concat(parts: list[Moments]) -> Moments:
-        return Moments(*(np.concatenate([getattr(part, name) for part in parts])
-                         for name in ("count", "total", "squares")))
+        return Moments(
+            *(np.concatenate([getattr(part, name) for part in parts]) for name in ("count", "total", "squares"))
+        )
 
     def plus(self, other: Moments) -> Moments:
         """One row: this one (a run's so far) plus the sum of ``other``'s rows."""
-        return Moments(self.count + other.count.sum(), self.total + other.total.sum(axis=0, keepdims=True),
-                       self.squares + other.squares.sum(axis=0, keepdims=True))
+        return Moments(
+            self.count + other.count.sum(),
+            self.total + other.total.sum(axis=0, keepdims=True),
+            self.squares + other.squares.sum(axis=0, keepdims=True),
+        )
 
     def mean_std(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and standard deviation over all rows, float32; 0 and 1 before any observation, std 1 where it is
@@ -57,10 +61,16 @@ class Moments:
         return torch.as_tensor(mean, dtype=torch.float32), torch.as_tensor(std, dtype=torch.float32)
 
     def state_dict(self) -> dict:
-        return {"count": torch.as_tensor(self.count), "total": torch.as_tensor(self.total),
-                "squares": torch.as_tensor(self.squares)}
+        return {
+            "count": torch.as_tensor(self.count),
+            "total": torch.as_tensor(self.total),
+            "squares": torch.as_tensor(self.squares),
+        }
 
     @staticmethod
     def from_state_dict(state: dict) -> Moments:
-        return Moments(state["count"].numpy().astype(np.int64), state["total"].numpy().astype(np.float64),
-                       state["squares"].numpy().astype(np.float64))
+        return Moments(
+            state["count"].numpy().astype(np.int64),
+            state["total"].numpy().astype(np.float64),
+            state["squares"].numpy().astype(np.float64),
+        )

@@ -14,9 +14,11 @@ import logging
 import os
 import socket
 import warnings
+from typing import Any, cast
 
 import numpy as np
 import torch
+from gymnasium.vector import VectorEnv
 
 from drrl.rollout.backend import Workload, chunk_bounds
 from drrl.rollout.evaluate import Evaluation, evaluate
@@ -34,14 +36,13 @@ except ImportError as error:
     raise ImportError(INSTALL_HINT) from error
 
 
-@ray.remote(num_cpus=1)
 class RolloutWorker:
     """One Ray actor: evaluates chunks of candidates on batched envs it keeps, one per chunk size."""
 
     def __init__(self, workload: Workload, candidates: int):
         retain_freed_memory()
         self.workload = workload
-        self.envs = {}
+        self.envs: dict[int, VectorEnv] = {}
         self._env(candidates)  # made now, so a bad env fails at start-up and the first generation is not slower
 
     def _env(self, candidates: int):
@@ -58,11 +59,22 @@ class RolloutWorker:
     def evaluate(self, params: np.ndarray, seed: int) -> Evaluation:
         work = self.workload
         env = self._env(params.shape[0])
-        return evaluate(work.policy, torch.tensor(params), env, work.episodes, seed=seed, moments=work.moments,
-                        max_steps=work.max_steps)
+        return evaluate(
+            work.policy,
+            torch.tensor(params),
+            env,
+            work.episodes,
+            seed=seed,
+            moments=work.moments,
+            max_steps=work.max_steps,
+        )
 
     def pid(self) -> int:
         return os.getpid()
+
+
+# The actor class, one CPU each; typed Any, as Ray's stubs do not give its methods their .remote
+RemoteWorker: Any = ray.remote(num_cpus=1)(RolloutWorker)
 
 
 class RayBackend:
@@ -86,7 +98,7 @@ class RayBackend:
             self.close()
             raise ValueError(f"{workers or 1} Ray worker(s) need as many CPUs, but the Ray cluster has {cpus}")
         self.chunks = chunk_bounds(workload.popsize, min(workers or cpus, workload.popsize))
-        self.workers = [RolloutWorker.remote(workload, stop - start) for start, stop in self.chunks]
+        self.workers = [RemoteWorker.remote(workload, stop - start) for start, stop in self.chunks]
         self.lost = 0  # chunks run again because their worker died
         try:
             ray.get([worker.pid.remote() for worker in self.workers], timeout=START_TIMEOUT)
@@ -107,15 +119,19 @@ class RayBackend:
                 raise error.cause from None
             except RayActorError as error:
                 if attempt + 1 >= MAX_ATTEMPTS:
-                    raise RuntimeError(f"chunk {index} lost its Ray worker {MAX_ATTEMPTS} times; giving up: "
-                                       f"{error}") from None
+                    raise RuntimeError(
+                        f"chunk {index} lost its Ray worker {MAX_ATTEMPTS} times; giving up: {error}"
+                    ) from None
                 self.lost += 1
                 start, stop = self.chunks[index]
-                warnings.warn(f"a Ray worker died while evaluating candidates {start}–{stop - 1}; running them "
-                              f"again on another worker", stacklevel=2)
+                warnings.warn(
+                    f"a Ray worker died while evaluating candidates {start}–{stop - 1}; running them "
+                    f"again on another worker",
+                    stacklevel=2,
+                )
                 self._replace(worker)
                 pending.update([self._submit(index, attempt + 1, parts, seed)])
-        return Evaluation.concat(results)
+        return Evaluation.concat(cast(list[Evaluation], results))  # every chunk came back
 
     def _submit(self, index: int, attempt: int, parts: list[np.ndarray], seed: int):
         """Chunk ``index`` on its own worker first, then on the next ones round the pool: (ref, what it runs)."""
@@ -128,14 +144,19 @@ class RayBackend:
             if worker is dead:
                 ray.kill(dead)
                 start, stop = self.chunks[slot]
-                self.workers[slot] = RolloutWorker.remote(self.workload, stop - start)
+                self.workers[slot] = RemoteWorker.remote(self.workload, stop - start)
 
     def use(self, workload: Workload) -> None:
         if (workload.popsize, workload.episodes) != (self.workload.popsize, self.workload.episodes):
             raise ValueError("a Ray backend keeps its popsize and episodes; make a new one for others")
         self.workload = workload
         shared = ray.put(workload)  # sent once, read by every worker
-        ray.get([worker.use.remote(shared, stop - start) for worker, (start, stop) in zip(self.workers, self.chunks)])
+        ray.get(
+            [
+                worker.use.remote(shared, stop - start)
+                for worker, (start, stop) in zip(self.workers, self.chunks, strict=True)
+            ]
+        )
 
     def pids(self) -> list[int]:
         """The process ids of the workers (for tests that kill one)."""
@@ -160,5 +181,7 @@ def _check_reachable(address: str | None) -> None:
     try:
         socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT).close()
     except OSError as error:
-        raise ValueError(f"nothing answers at the Ray cluster address {address} ({error.strerror or error}); is "
-                         f"the cluster up (ray start --head)?") from None
+        raise ValueError(
+            f"nothing answers at the Ray cluster address {address} ({error.strerror or error}); is "
+            f"the cluster up (ray start --head)?"
+        ) from None

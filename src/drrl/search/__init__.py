@@ -11,8 +11,9 @@ from drrl.search.shaping import FITNESS_SHAPINGS, centered_ranks, shape_fitness
 SEARCHES = ("pgpe", "cmaes", "sep-cmaes")
 
 
-def make_search(name: str, center: torch.Tensor, *, popsize: int, sigma_init: float, seed: int,
-                **pgpe_settings) -> Search:
+def make_search(
+    name: str, center: torch.Tensor, *, popsize: int, sigma_init: float, seed: int, **pgpe_settings
+) -> Search:
     """The search ``name`` from ``center``; ``pgpe_settings`` (sampler, optimizer, ...) apply to PGPE only."""
     if name == "pgpe":
         return PGPE(center, popsize=popsize, sigma_init=sigma_init, seed=seed, **pgpe_settings)
@@ -23,5 +24,17 @@ def make_search(name: str, center: torch.Tensor, *, popsize: int, sigma_init: fl
     raise ValueError(f"unknown search {name!r}; choose one of: {', '.join(SEARCHES)}")
 
 
-__all__ = ["FITNESS_SHAPINGS", "OPTIMIZERS", "PGPE", "SAMPLERS", "SEARCHES", "ClipUp", "Search", "centered_ranks",
-           "make_optimizer", "make_search", "mirror_about_median", "shape_fitness"]
+__all__ = [
+    "FITNESS_SHAPINGS",
+    "OPTIMIZERS",
+    "PGPE",
+    "SAMPLERS",
+    "SEARCHES",
+    "ClipUp",
+    "Search",
+    "centered_ranks",
+    "make_optimizer",
+    "make_search",
+    "mirror_about_median",
+    "shape_fitness",
+]

@@ -59,14 +59,24 @@ class Search(ABC):
         fitness = self._check_fitness(fitness)
         metrics = self._update(fitness)
         self.generation += 1
-        return {"mean": float(fitness.mean()), "best": float(fitness.max()), "worst": float(fitness.min()),
-                "sigma_norm": float(self.spread.norm()), **metrics}
+        return {
+            "mean": float(fitness.mean()),
+            "best": float(fitness.max()),
+            "worst": float(fitness.min()),
+            "sigma_norm": float(self.spread.norm()),
+            **metrics,
+        }
 
     def state_dict(self) -> dict:
         """Everything that changes during a run, as tensors and plain Python values (never pickled). Restored into
         a search built with the same settings, it continues bit-identically, also between an ask and its tell."""
-        return {"kind": self.kind, "num_params": self.num_params, "popsize": self.popsize,
-                "generation": self.generation, **self._state()}
+        return {
+            "kind": self.kind,
+            "num_params": self.num_params,
+            "popsize": self.popsize,
+            "generation": self.generation,
+            **self._state(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         """Restore a :meth:`state_dict`; the search must have been built with the same settings."""
@@ -75,20 +85,26 @@ class Search(ABC):
                 raise ValueError(f"not a {self.kind} state: it lacks {key}")
         for key in ("kind", "num_params", "popsize"):
             if state[key] != getattr(self, key):
-                raise ValueError(f"state is for {key}={state[key]!r} but this search has "
-                                 f"{key}={getattr(self, key)!r}; build it with the settings the state was saved with")
+                raise ValueError(
+                    f"state is for {key}={state[key]!r} but this search has "
+                    f"{key}={getattr(self, key)!r}; build it with the settings the state was saved with"
+                )
         self._load_state(state)
         self.generation = int(state["generation"])
 
     def _check_fitness(self, fitness) -> torch.Tensor:
         fitness = torch.as_tensor(fitness).detach()
         if fitness.shape != (self.popsize,):
-            raise ValueError(f"fitness must have shape ({self.popsize},), one value per asked candidate; "
-                             f"got shape {tuple(fitness.shape)}")
+            raise ValueError(
+                f"fitness must have shape ({self.popsize},), one value per asked candidate; "
+                f"got shape {tuple(fitness.shape)}"
+            )
         fitness = fitness.to(dtype=torch.float32)
         bad = torch.nonzero(~torch.isfinite(fitness)).flatten().tolist()
         if bad:
             shown = ", ".join(map(str, bad[:10])) + (", ..." if len(bad) > 10 else "")
-            raise ValueError(f"fitness must be finite (after conversion to float32); candidate index(es) {shown} "
-                             f"are NaN or infinite; the search was not updated")
+            raise ValueError(
+                f"fitness must be finite (after conversion to float32); candidate index(es) {shown} "
+                f"are NaN or infinite; the search was not updated"
+            )
         return fitness

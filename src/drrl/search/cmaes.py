@@ -47,8 +47,9 @@ class CMAES(Search):
 
     kind = "cmaes"
 
-    def __init__(self, center: torch.Tensor, *, popsize: int, sigma_init: float = 1.0, separable: bool = False,
-                 seed: int = 0):
+    def __init__(
+        self, center: torch.Tensor, *, popsize: int, sigma_init: float = 1.0, separable: bool = False, seed: int = 0
+    ):
         center = torch.as_tensor(center)
         _check_settings(center, popsize, sigma_init, separable, seed)
         super().__init__(center.numel(), popsize)
@@ -57,8 +58,9 @@ class CMAES(Search):
         mean = center.detach().cpu().to(torch.float64).numpy().copy()
         optimizer_class = cmaes.SepCMA if self.separable else cmaes.CMA
         with np.errstate(divide="ignore"):  # CMA divides by a zero rank-μ rate for popsize < 4, harmlessly
-            self._optimizer = optimizer_class(mean=mean, sigma=float(sigma_init), seed=int(seed),
-                                              population_size=self.popsize)
+            self._optimizer = optimizer_class(
+                mean=mean, sigma=float(sigma_init), seed=int(seed), population_size=self.popsize
+            )
         self._asked: np.ndarray | None = None  # the float64 candidates of the last ask, waiting for tell
 
     @property
@@ -85,9 +87,10 @@ class CMAES(Search):
         if self._asked is None:
             raise RuntimeError("tell() needs candidates from ask() first (each ask is told once)")
         if not np.all(np.abs(self._asked) < MAX_ABS):
-            raise RuntimeError(f"the search diverged: asked candidates reach |x| >= {MAX_ABS:g}, which cmaes "
-                               f"refuses to be told")
-        self._optimizer.tell([(x, -f) for x, f in zip(self._asked, fitness.tolist())])
+            raise RuntimeError(
+                f"the search diverged: asked candidates reach |x| >= {MAX_ABS:g}, which cmaes refuses to be told"
+            )
+        self._optimizer.tell([(x, -f) for x, f in zip(self._asked, fitness.tolist(), strict=True)])
         self._asked = None
         return {"step_size": float(self._optimizer._sigma)}
 
@@ -101,9 +104,17 @@ class CMAES(Search):
             del attrs["_c_1d"]
             attrs["_C"] = self._optimizer._C
         name, keys, pos, has_gauss, cached_gaussian = self._optimizer._rng.get_state()
-        state = {"separable": self.separable, "optimizer": {key: _plain(value) for key, value in attrs.items()},
-                 "rng_state": {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
-                               "has_gauss": int(has_gauss), "cached_gaussian": float(cached_gaussian)}}
+        state = {
+            "separable": self.separable,
+            "optimizer": {key: _plain(value) for key, value in attrs.items()},
+            "rng_state": {
+                "name": name,
+                "keys": torch.from_numpy(keys.astype(np.int64)),
+                "pos": int(pos),
+                "has_gauss": int(has_gauss),
+                "cached_gaussian": float(cached_gaussian),
+            },
+        }
         if self._asked is not None:
             state["pending"] = torch.from_numpy(self._asked.copy())
         return state
@@ -113,8 +124,10 @@ class CMAES(Search):
         if missing:
             raise ValueError(f"not a CMA-ES state: it lacks {', '.join(missing)}")
         if state["separable"] != self.separable:
-            raise ValueError(f"state is for separable={state['separable']!r} but this CMA-ES has "
-                             f"separable={self.separable!r}; build it with the settings the state was saved with")
+            raise ValueError(
+                f"state is for separable={state['separable']!r} but this CMA-ES has "
+                f"separable={self.separable!r}; build it with the settings the state was saved with"
+            )
         attrs = {key: _numpy(value) for key, value in state["optimizer"].items()}
         covariance = attrs["_C"]
         if not self.separable:  # what CMA.__setstate__ unpacks; the exact C is put back below
@@ -122,8 +135,15 @@ class CMAES(Search):
         self._optimizer.__setstate__(attrs)
         self._optimizer._C = covariance
         rng = state["rng_state"]
-        self._optimizer._rng.set_state((rng["name"], _numpy(rng["keys"]).astype(np.uint32), int(rng["pos"]),
-                                        int(rng["has_gauss"]), float(rng["cached_gaussian"])))
+        self._optimizer._rng.set_state(
+            (
+                rng["name"],
+                _numpy(rng["keys"]).astype(np.uint32),
+                int(rng["pos"]),
+                int(rng["has_gauss"]),
+                float(rng["cached_gaussian"]),
+            )
+        )
         pending = state.get("pending")
         self._asked = None if pending is None else _numpy(pending)
 
@@ -146,8 +166,9 @@ def _check_settings(center, popsize, sigma_init, separable, seed) -> None:
     """Reject bad settings before any work, each with what was wrong and what is allowed (instead of cmaes's
     assertions)."""
     if center.dim() != 1 or center.numel() == 0:
-        raise ValueError(f"center must be a non-empty 1-D tensor (one mean per parameter), "
-                         f"got shape {tuple(center.shape)}")
+        raise ValueError(
+            f"center must be a non-empty 1-D tensor (one mean per parameter), got shape {tuple(center.shape)}"
+        )
     if center.dtype == torch.bool or center.is_complex() or not bool(torch.isfinite(center.double()).all()):
         raise ValueError("center must hold finite real numbers")
     if not bool((center.double().abs() < MAX_ABS).all()):
@@ -158,8 +179,9 @@ def _check_settings(center, popsize, sigma_init, separable, seed) -> None:
         raise ValueError("separable CMA-ES (cmaes.SepCMA) needs at least 2 parameters; use separable=False")
     if isinstance(popsize, bool) or not isinstance(popsize, Integral) or popsize < 2:
         raise ValueError(f"popsize must be an integer >= 2, got {popsize!r}")
-    if isinstance(sigma_init, bool) or not (isinstance(sigma_init, Real) and math.isfinite(sigma_init)
-                                            and 0 < sigma_init < MAX_ABS):
+    if isinstance(sigma_init, bool) or not (
+        isinstance(sigma_init, Real) and math.isfinite(sigma_init) and 0 < float(sigma_init) < MAX_ABS
+    ):
         raise ValueError(f"sigma_init must be a positive finite number below {MAX_ABS:g}, got {sigma_init!r}")
-    if isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= seed < 2**32:
+    if isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= int(seed) < 2**32:
         raise ValueError(f"seed must be an integer in [0, 2**32), got {seed!r}")

@@ -39,8 +39,9 @@ class ClipUp(torch.optim.Optimizer):
     (fixed when the optimizer is built). A zero gradient adds nothing to the velocity.
     """
 
-    def __init__(self, params: Iterable[torch.Tensor], lr: float, momentum: float = 0.9,
-                 max_speed: float | None = None):
+    def __init__(
+        self, params: Iterable[torch.Tensor], lr: float, momentum: float = 0.9, max_speed: float | None = None
+    ):
         if max_speed is None:
             max_speed = 2.0 * lr
         for name, value in (("lr", lr), ("max_speed", max_speed)):
@@ -73,22 +74,25 @@ class ClipUp(torch.optim.Optimizer):
                 velocities.append(velocity)
             speed = torch.sqrt(sum(v.square().sum() for v in velocities))
             shrink = (group["max_speed"] / speed.clamp_min(tiny)).clamp(max=1.0)
-            for p, velocity in zip(params, velocities):
+            for p, velocity in zip(params, velocities, strict=True):
                 velocity.mul_(shrink)
                 p.add_(velocity)
         return loss
 
 
-def make_optimizer(name: str, params: Iterable[torch.Tensor], lr: float,
-                   options: dict | None = None) -> torch.optim.Optimizer:
+def make_optimizer(
+    name: str, params: Iterable[torch.Tensor], lr: float, options: dict | None = None
+) -> torch.optim.Optimizer:
     """One of :data:`OPTIMIZERS` over ``params`` with step size ``lr`` and the extra keyword ``options``."""
     if name not in OPTIMIZERS:
         raise ValueError(f"unknown optimizer {name!r}; choose one of: {', '.join(OPTIMIZERS)}")
     options = dict(options or {})
     unknown = sorted(set(options) - set(OPTIMIZER_OPTIONS[name]))
     if unknown:
-        raise ValueError(f"optimizer {name!r} does not take option(s) {', '.join(map(repr, unknown))}; "
-                         f"it accepts: {', '.join(OPTIMIZER_OPTIONS[name])} (its step size is center_lr)")
+        raise ValueError(
+            f"optimizer {name!r} does not take option(s) {', '.join(map(repr, unknown))}; "
+            f"it accepts: {', '.join(OPTIMIZER_OPTIONS[name])} (its step size is center_lr)"
+        )
     if name == "sgd":
         return torch.optim.SGD(params, lr=lr, **options)
     if name == "adam":

@@ -49,8 +49,16 @@ __all__ = ["FITNESS_SHAPINGS", "OPTIMIZERS", "PGPE", "SAMPLERS", "mirror_about_m
 SAMPLERS = ("reinforce", "symmetric", "supersymmetric")
 CANDIDATES_PER_DRAW = {"reinforce": 1, "symmetric": 2, "supersymmetric": 4}  # popsize must be a multiple
 
-STATE_KEYS = {"sampler", "optimizer", "center", "sigma", "baseline", "has_baseline", "rng_state",
-              "optimizer_state"}  # plus "pending_noise" between an ask and its tell
+STATE_KEYS = {
+    "sampler",
+    "optimizer",
+    "center",
+    "sigma",
+    "baseline",
+    "has_baseline",
+    "rng_state",
+    "optimizer_state",
+}  # plus "pending_noise" between an ask and its tell
 
 HALF_NORMAL_MEDIAN = 0.6744897501960817  # Φ⁻¹(3/4): the median of |ε| for ε ~ N(0, 1)
 _MIRROR_C1, _MIRROR_C2, _MIRROR_C3 = -0.06655, -0.9706, 0.124  # Sehnke 2013's fit of the mirror map
@@ -107,14 +115,37 @@ class PGPE(Search):
 
     kind = "pgpe"
 
-    def __init__(self, center: torch.Tensor, *, popsize: int, sampler: str = "symmetric",
-                 sigma_init: float = 1.0, center_lr: float = 0.01, sigma_lr: float = 0.005,
-                 optimizer: str = "sgd", optimizer_options: dict | None = None,
-                 fitness_shaping: str = "none", baseline_decay: float = 0.1, max_sigma_change: float = 0.2,
-                 seed: int = 0):
+    def __init__(
+        self,
+        center: torch.Tensor,
+        *,
+        popsize: int,
+        sampler: str = "symmetric",
+        sigma_init: float = 1.0,
+        center_lr: float = 0.01,
+        sigma_lr: float = 0.005,
+        optimizer: str = "sgd",
+        optimizer_options: dict | None = None,
+        fitness_shaping: str = "none",
+        baseline_decay: float = 0.1,
+        max_sigma_change: float = 0.2,
+        seed: int = 0,
+    ):
         center = torch.as_tensor(center)
-        _check_settings(center, popsize, sampler, sigma_init, center_lr, sigma_lr, optimizer, optimizer_options,
-                        fitness_shaping, baseline_decay, max_sigma_change, seed)
+        _check_settings(
+            center,
+            popsize,
+            sampler,
+            sigma_init,
+            center_lr,
+            sigma_lr,
+            optimizer,
+            optimizer_options,
+            fitness_shaping,
+            baseline_decay,
+            max_sigma_change,
+            seed,
+        )
         super().__init__(center.numel(), popsize)
         self.sampler = sampler
         self.optimizer = optimizer
@@ -171,13 +202,16 @@ class PGPE(Search):
             raise RuntimeError("tell() needs candidates from ask() first (each ask is told once)")
         shaped = shape_fitness(fitness.to(self._mu.device), self.fitness_shaping)
         self._update_baseline(float(shaped.mean()))  # 2.33, before the update (Algorithm 2, step 6)
-        grad_mu, grad_sigma = self._gradients(shaped)
+        grad_mu, grad_sigma = self._gradients(shaped, self._noise)
         old_mu = self._mu.detach().clone()
         self._step_center(grad_mu)
         self._step_sigma(grad_sigma)
         self._noise = None
-        return {"baseline": self._baseline, "sigma_mean": float(self._sigma.mean()),
-                "center_step_norm": float((self._mu.detach() - old_mu).norm())}
+        return {
+            "baseline": self._baseline,
+            "sigma_mean": float(self._sigma.mean()),
+            "center_step_norm": float((self._mu.detach() - old_mu).norm()),
+        }
 
     def _update_baseline(self, mean: float) -> None:
         """2.33: b ← decay · b + (1 − decay) · mean fitness; on the first tell b starts at the mean."""
@@ -186,15 +220,14 @@ class PGPE(Search):
         else:
             self._baseline, self._has_baseline = mean, True
 
-    def _gradients(self, r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Ascent directions (g_μ, g_σ) for the sampler; the steps are lr times these."""
+    def _gradients(self, r: torch.Tensor, eps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Ascent directions (g_μ, g_σ) for the sampler from the shaped fitness r of the last ask's directions eps;
+        the steps are lr times these."""
         sigma, b = self._sigma, self._baseline
         if self.sampler == "reinforce":  # 2.28–2.29, ×σ² (Sehnke et al.), sign typo fixed
-            t = self._noise
             advantage = (r - b)[:, None]
-            return (advantage * t).mean(0), (advantage * (t.square() - sigma.square()) / sigma).mean(0)
-        pairs = r.view(-1, 2)  # (r⁺, r⁻) per row of self._noise
-        eps = self._noise
+            return (advantage * eps).mean(0), (advantage * (eps.square() - sigma.square()) / sigma).mean(0)
+        pairs = r.view(-1, 2)  # (r⁺, r⁻) per row of eps
         grad_mu = (eps * ((pairs[:, 0] - pairs[:, 1]) / 2)[:, None]).mean(0)  # 2.31
         if self.sampler == "symmetric":
             advantage = (pairs.mean(1) - b)[:, None]
@@ -215,8 +248,12 @@ class PGPE(Search):
     def _state(self) -> dict:
         optimizer_state = self._optimizer.state_dict()["state"].get(0, {})
         state = {
-            "sampler": self.sampler, "optimizer": self.optimizer, "center": self.center, "sigma": self.sigma,
-            "baseline": self._baseline, "has_baseline": self._has_baseline,
+            "sampler": self.sampler,
+            "optimizer": self.optimizer,
+            "center": self.center,
+            "sigma": self.sigma,
+            "baseline": self._baseline,
+            "has_baseline": self._has_baseline,
             "rng_state": self._generator.get_state(),
             "optimizer_state": {name: _copy(value) for name, value in optimizer_state.items() if value is not None},
         }
@@ -230,8 +267,10 @@ class PGPE(Search):
             raise ValueError(f"not a PGPE state: it lacks {', '.join(missing)}")
         for key in ("sampler", "optimizer"):
             if state.get(key) != getattr(self, key):
-                raise ValueError(f"state is for {key}={state.get(key)!r} but this PGPE has "
-                                 f"{key}={getattr(self, key)!r}; build it with the settings the state was saved with")
+                raise ValueError(
+                    f"state is for {key}={state.get(key)!r} but this PGPE has "
+                    f"{key}={getattr(self, key)!r}; build it with the settings the state was saved with"
+                )
         device = self._mu.device
         with torch.no_grad():
             self._mu.copy_(state["center"].to(device))
@@ -240,8 +279,9 @@ class PGPE(Search):
         self._has_baseline = bool(state["has_baseline"])
         self._generator.set_state(state["rng_state"].cpu().to(torch.uint8))
         optimizer_state = {0: dict(state["optimizer_state"])} if state["optimizer_state"] else {}
-        self._optimizer.load_state_dict({"state": optimizer_state,
-                                         "param_groups": self._optimizer.state_dict()["param_groups"]})
+        self._optimizer.load_state_dict(
+            {"state": optimizer_state, "param_groups": self._optimizer.state_dict()["param_groups"]}
+        )
         noise = state.get("pending_noise")
         self._noise = None if noise is None else noise.to(device=device, dtype=torch.float32).clone()
 
@@ -271,16 +311,32 @@ def _copy(value):
     return value.clone() if isinstance(value, torch.Tensor) else value
 
 
-def _check_settings(center, popsize, sampler, sigma_init, center_lr, sigma_lr, optimizer, optimizer_options,
-                    fitness_shaping, baseline_decay, max_sigma_change, seed) -> None:
+def _check_settings(
+    center,
+    popsize,
+    sampler,
+    sigma_init,
+    center_lr,
+    sigma_lr,
+    optimizer,
+    optimizer_options,
+    fitness_shaping,
+    baseline_decay,
+    max_sigma_change,
+    seed,
+) -> None:
     """Reject bad settings before any work, each with what was wrong and what is allowed."""
-    for name, value, choices in (("sampler", sampler, SAMPLERS), ("optimizer", optimizer, OPTIMIZERS),
-                                 ("fitness_shaping", fitness_shaping, FITNESS_SHAPINGS)):
+    for name, value, choices in (
+        ("sampler", sampler, SAMPLERS),
+        ("optimizer", optimizer, OPTIMIZERS),
+        ("fitness_shaping", fitness_shaping, FITNESS_SHAPINGS),
+    ):
         if value not in choices:
             raise ValueError(f"unknown {name} {value!r}; choose one of: {', '.join(choices)}")
     if center.dim() != 1 or center.numel() == 0:
-        raise ValueError(f"center must be a non-empty 1-D tensor (one μ per parameter), "
-                         f"got shape {tuple(center.shape)}")
+        raise ValueError(
+            f"center must be a non-empty 1-D tensor (one μ per parameter), got shape {tuple(center.shape)}"
+        )
     if center.dtype == torch.bool or center.is_complex() or not bool(torch.isfinite(center.double()).all()):
         raise ValueError("center must hold finite real numbers")
     if isinstance(popsize, bool) or not isinstance(popsize, Integral) or popsize < 2:
@@ -288,15 +344,15 @@ def _check_settings(center, popsize, sampler, sigma_init, center_lr, sigma_lr, o
     per_draw = CANDIDATES_PER_DRAW[sampler]
     if popsize % per_draw:
         what = "pairs μ ± ε" if sampler == "symmetric" else "quadruples μ ± ε, μ ± ε*"
-        raise ValueError(f"{sampler} sampling draws {what}, so popsize must be a multiple of {per_draw}; "
-                         f"got {popsize}")
+        raise ValueError(f"{sampler} sampling draws {what}, so popsize must be a multiple of {per_draw}; got {popsize}")
     for name, value in (("sigma_init", sigma_init), ("center_lr", center_lr), ("sigma_lr", sigma_lr)):
-        if not (isinstance(value, Real) and math.isfinite(value) and value > 0):
+        if not (isinstance(value, Real) and math.isfinite(value) and float(value) > 0):
             raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    if not (isinstance(baseline_decay, Real) and 0 <= baseline_decay <= 1):
-        raise ValueError(f"baseline_decay (the old baseline's weight in 2.33) must be in [0, 1], "
-                         f"got {baseline_decay!r}")
-    if not (isinstance(max_sigma_change, Real) and 0 < max_sigma_change < 1):
+    if not (isinstance(baseline_decay, Real) and 0 <= float(baseline_decay) <= 1):
+        raise ValueError(
+            f"baseline_decay (the old baseline's weight in 2.33) must be in [0, 1], got {baseline_decay!r}"
+        )
+    if not (isinstance(max_sigma_change, Real) and 0 < float(max_sigma_change) < 1):
         raise ValueError(f"max_sigma_change (bound on |Δσ/σ| per step) must be in (0, 1), got {max_sigma_change!r}")
     if not (optimizer_options is None or isinstance(optimizer_options, dict)):
         raise ValueError(f"optimizer_options must be a dict of keyword arguments or None, got {optimizer_options!r}")

@@ -13,10 +13,14 @@ Importing this package registers the environments below with Gymnasium (``gymnas
 task options (``reward="dense"``, ``action_noise``, ``fixed_target``, ...) are keyword arguments of ``make``.
 """
 
+from typing import Any
+
 from drrl.envs.baxter.task import explain_reach, reach_verdict
 from drrl.envs.registry import EnvEntry, register
 
-ENVIRONMENTS = {  # alias, Gymnasium id, task options, whether the verdict of reward 5.10 applies
+ENVIRONMENTS: dict[
+    str, tuple[str, dict[str, Any], bool]
+] = {  # alias, Gymnasium id, task options, whether the verdict of reward 5.10 applies
     "baxter-reach": ("drrl/BaxterReach-v0", {"arms": ("right", "left")}, True),  # both arms, fixed targets
     "baxter-reach-dense": ("drrl/BaxterReachDense-v0", {"arms": ("right", "left"), "reward": "dense"}, False),
     "baxter-reach-right": ("drrl/BaxterReachRight-v0", {"arms": ("right",)}, True),  # the thesis's setting
@@ -24,6 +28,10 @@ ENVIRONMENTS = {  # alias, Gymnasium id, task options, whether the verdict of re
 }
 
 for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
-    _judged = {"verdict": reach_verdict, "explain": explain_reach} if _thesis_reward else {}
-    register(EnvEntry(_env_id, _alias, **_judged), "drrl.envs.baxter.env:BaxterReachEnv",
-             "drrl.envs.baxter.env:BaxterReachVectorEnv", _options)
+    _judged: dict[str, Any] = {"verdict": reach_verdict, "explain": explain_reach} if _thesis_reward else {}
+    register(
+        EnvEntry(_env_id, _alias, **_judged),
+        "drrl.envs.baxter.env:BaxterReachEnv",
+        "drrl.envs.baxter.env:BaxterReachVectorEnv",
+        _options,
+    )

@@ -14,7 +14,7 @@ each group.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -26,6 +26,9 @@ from drrl.envs.baxter.model import TIMESTEP
 from drrl.envs.baxter.simulation import BaxterBatch
 from drrl.envs.baxter.task import CONTROL_PERIOD, ReachTask
 
+if TYPE_CHECKING:
+    from drrl.envs.baxter.render import SceneRenderer
+
 SUBSTEPS = round(CONTROL_PERIOD / TIMESTEP)  # physics steps per control period
 _METADATA = {"render_modes": ["rgb_array"], "render_fps": round(1 / CONTROL_PERIOD)}
 
@@ -34,17 +37,16 @@ class _Randomness:
     """Random numbers per env, from one generator for the whole batch or from each env's own generator (then drawn
     env by env: a Python loop, paid at restarts and, with transition noise, at every step)."""
 
-    def __init__(self, batch: np.random.Generator | None = None,
-                 per_env: Sequence[np.random.Generator] | None = None) -> None:
+    def __init__(self, batch: np.random.Generator | None = None, per_env: Sequence[np.random.Generator] = ()) -> None:
         self._batch, self._per_env = batch, per_env
 
     def uniform(self, ids: np.ndarray, size: int) -> np.ndarray:
-        if self._per_env is None:
+        if self._batch is not None:
             return self._batch.random((len(ids), size))
         return np.stack([self._per_env[i].random(size) for i in ids])
 
     def normal(self, ids: np.ndarray, size: int) -> np.ndarray:
-        if self._per_env is None:
+        if self._batch is not None:
             return self._batch.standard_normal((len(ids), size))
         return np.stack([self._per_env[i].standard_normal(size) for i in ids])
 
@@ -74,12 +76,20 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
 
     metadata = {**_METADATA, "autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, num_envs: int = 1, render_mode: str | None = None, task: ReachTask | None = None,
-                 threads: int | None = None, width: int = 320, height: int = 240, shadows: bool = False,
-                 **task_options: Any) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        render_mode: str | None = None,
+        task: ReachTask | None = None,
+        threads: int | None = None,
+        width: int = 320,
+        height: int = 240,
+        shadows: bool = False,
+        **task_options: Any,
+    ) -> None:
         self.num_envs = num_envs
         self.render_mode = _check_render_mode(render_mode)
-        self._render_options = {"width": width, "height": height, "shadows": shadows}
+        self._render_options: dict[str, Any] = {"width": width, "height": height, "shadows": shadows}
         self.task = task if task is not None else ReachTask(**task_options)
         self.sim = BaxterBatch(num_envs, self.task.arms, SUBSTEPS, threads)
         self.single_observation_space, self.single_action_space = _spaces(self.task)
@@ -88,10 +98,11 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         self.elapsed_steps = np.zeros(num_envs, dtype=np.int64)
         self._randomness: _Randomness | None = None
         self._ended = np.zeros(num_envs, dtype=bool)  # ended on the previous step: restart on this one
-        self._renderer = None
+        self._renderer: SceneRenderer | None = None
 
-    def reset(self, *, seed: int | Sequence[int] | None = None,
-              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(
+        self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start every env afresh. ``seed``: one int for the batch, one int per env, or None to go on drawing from
         the current generator(s). ``options`` are not used."""
         if isinstance(seed, (int, np.integer)):
@@ -114,8 +125,9 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         """
         if self._randomness is None:
             raise RuntimeError("call reset() before step()")
-        reward, terminated, truncated, distance = self._advance(_checked(actions, (self.num_envs,
-                                                                                   self.task.num_joints)))
+        reward, terminated, truncated, distance = self._advance(
+            _checked(actions, (self.num_envs, self.task.num_joints))
+        )
         restarting = self._ended.nonzero()[0]
         if restarting.size:
             self._start(restarting)
@@ -143,8 +155,14 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
 
     # ------------------------------------------------------------------------------------------------ internals
 
+    @property
+    def _random(self) -> _Randomness:
+        if self._randomness is None:
+            raise RuntimeError("call reset() before step()")
+        return self._randomness
+
     def _start(self, ids: np.ndarray) -> None:
-        joints, targets = self.task.starts(self._randomness.uniform(ids, self.task.random_numbers_per_start))
+        joints, targets = self.task.starts(self._random.uniform(ids, self.task.random_numbers_per_start))
         self.sim.restart(ids, joints, targets)
         self.elapsed_steps[ids] = 0
         self._ended[ids] = False
@@ -153,7 +171,7 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         """Physics and reward of one control period: (reward, terminated, truncated, largest distance), each (n,)."""
         limit = self.task.max_velocity
         if self.task.action_noise:
-            noise = self._randomness.normal(np.arange(self.num_envs), self.task.num_joints)
+            noise = self._random.normal(np.arange(self.num_envs), self.task.num_joints)
             velocities = velocities + self.task.action_noise * limit * noise
         self.sim.step(np.clip(velocities, -limit, limit))
         self.elapsed_steps += 1
@@ -189,10 +207,18 @@ class BaxterReachEnv(gym.Env):
 
     metadata = _METADATA
 
-    def __init__(self, render_mode: str | None = None, task: ReachTask | None = None, width: int = 320,
-                 height: int = 240, shadows: bool = False, **task_options: Any) -> None:
-        self._vector = BaxterReachVectorEnv(1, render_mode, task, threads=1, width=width, height=height,
-                                            shadows=shadows, **task_options)
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        task: ReachTask | None = None,
+        width: int = 320,
+        height: int = 240,
+        shadows: bool = False,
+        **task_options: Any,
+    ) -> None:
+        self._vector = BaxterReachVectorEnv(
+            1, render_mode, task, threads=1, width=width, height=height, shadows=shadows, **task_options
+        )
         self.render_mode = self._vector.render_mode
         self.task = self._vector.task
         self.observation_space = self._vector.single_observation_space
@@ -206,8 +232,9 @@ class BaxterReachEnv(gym.Env):
     def elapsed_steps(self) -> int:
         return int(self._vector.elapsed_steps[0])
 
-    def reset(self, *, seed: int | None = None,
-              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self._vector._randomness = _Randomness(per_env=[self.np_random])
         self._vector._start(np.zeros(1, dtype=np.int64))
@@ -218,8 +245,13 @@ class BaxterReachEnv(gym.Env):
             raise RuntimeError("call reset() before step()")
         action = _checked(action, (self.task.num_joints,))
         reward, terminated, truncated, distance = self._vector._advance(action[None])
-        return (self._vector._observe()[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]),
-                {"distance": float(distance[0])})
+        return (
+            self._vector._observe()[0],
+            float(reward[0]),
+            bool(terminated[0]),
+            bool(truncated[0]),
+            {"distance": float(distance[0])},
+        )
 
     def render(self) -> np.ndarray | None:
         frames = self._vector.render()

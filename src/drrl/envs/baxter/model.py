@@ -61,20 +61,83 @@ class Joint:
 
 HALF_PI = np.pi / 2
 ARM = (
-    Joint("s0", (0.055695, 0, 0.011038), (0, 0, 0), -1.70167993878, 1.70167993878, 1.5, 50.0, 5.70044,
-          (((0, 0, 0.08, 0, 0, 0.27035), 0.06), ((0, 0, 0.27035, 0.069, 0, 0.27035), 0.06))),
-    Joint("s1", (0.069, 0, 0.27035), (-HALF_PI, 0, 0), -2.147, 1.047, 1.5, 100.0, 3.22698,
-          (((0, 0, 0, 0.102, 0, 0), 0.06),)),
-    Joint("e0", (0.102, 0, 0), (HALF_PI, 0, HALF_PI), -3.05417993878, 3.05417993878, 1.5, 50.0, 4.31272,
-          (((0, 0, 0, 0, 0, 0.26242), 0.06), ((0, 0, 0.26242, 0.069, 0, 0.26242), 0.06))),
-    Joint("e1", (0.069, 0, 0.26242), (-HALF_PI, -HALF_PI, 0), -0.05, 2.618, 1.5, 50.0, 2.07206,
-          (((0, 0, 0, 0.10359, 0, 0), 0.06),)),
-    Joint("w0", (0.10359, 0, 0), (HALF_PI, 0, HALF_PI), -3.059, 3.059, 4.0, 15.0, 2.24665,
-          (((0, 0, 0, 0, 0, 0.2707), 0.05), ((0, 0, 0.2707, 0.01, 0, 0.2707), 0.05))),
-    Joint("w1", (0.01, 0, 0.2707), (-HALF_PI, -HALF_PI, 0), -1.57079632679, 2.094, 4.0, 15.0, 1.60979,
-          (((0, 0, 0, 0.115975, 0, 0), 0.05),)),
-    Joint("w2", (0.115975, 0, 0), (HALF_PI, 0, HALF_PI), -3.059, 3.059, 4.0, 15.0, 0.35093,
-          (((0, 0, 0, 0, 0, 0.11355), 0.045),)),
+    Joint(
+        "s0",
+        (0.055695, 0, 0.011038),
+        (0, 0, 0),
+        -1.70167993878,
+        1.70167993878,
+        1.5,
+        50.0,
+        5.70044,
+        (((0, 0, 0.08, 0, 0, 0.27035), 0.06), ((0, 0, 0.27035, 0.069, 0, 0.27035), 0.06)),
+    ),
+    Joint(
+        "s1",
+        (0.069, 0, 0.27035),
+        (-HALF_PI, 0, 0),
+        -2.147,
+        1.047,
+        1.5,
+        100.0,
+        3.22698,
+        (((0, 0, 0, 0.102, 0, 0), 0.06),),
+    ),
+    Joint(
+        "e0",
+        (0.102, 0, 0),
+        (HALF_PI, 0, HALF_PI),
+        -3.05417993878,
+        3.05417993878,
+        1.5,
+        50.0,
+        4.31272,
+        (((0, 0, 0, 0, 0, 0.26242), 0.06), ((0, 0, 0.26242, 0.069, 0, 0.26242), 0.06)),
+    ),
+    Joint(
+        "e1",
+        (0.069, 0, 0.26242),
+        (-HALF_PI, -HALF_PI, 0),
+        -0.05,
+        2.618,
+        1.5,
+        50.0,
+        2.07206,
+        (((0, 0, 0, 0.10359, 0, 0), 0.06),),
+    ),
+    Joint(
+        "w0",
+        (0.10359, 0, 0),
+        (HALF_PI, 0, HALF_PI),
+        -3.059,
+        3.059,
+        4.0,
+        15.0,
+        2.24665,
+        (((0, 0, 0, 0, 0, 0.2707), 0.05), ((0, 0, 0.2707, 0.01, 0, 0.2707), 0.05)),
+    ),
+    Joint(
+        "w1",
+        (0.01, 0, 0.2707),
+        (-HALF_PI, -HALF_PI, 0),
+        -1.57079632679,
+        2.094,
+        4.0,
+        15.0,
+        1.60979,
+        (((0, 0, 0, 0.115975, 0, 0), 0.05),),
+    ),
+    Joint(
+        "w2",
+        (0.115975, 0, 0),
+        (HALF_PI, 0, HALF_PI),
+        -3.059,
+        3.059,
+        4.0,
+        15.0,
+        0.35093,
+        (((0, 0, 0, 0, 0, 0.11355), 0.045),),
+    ),
 )
 HAND = (0.0, 0.0, 0.11355)  # the hand frame in the last link's frame
 HAND_MASS = 0.19125
@@ -110,8 +173,14 @@ FLOOR_HEIGHT = -0.93
 SCENE, RIGHT_ARM, LEFT_ARM = 1, 2, 4
 ARM_BITS = {"right": RIGHT_ARM, "left": LEFT_ARM}
 
-COLOURS = {"arm": "0.55 0.1 0.1 1", "joint": "0.15 0.15 0.15 1", "torso": "0.25 0.25 0.28 1",
-           "table": "0.6 0.45 0.3 1", "target": "0.2 0.9 0.3 0.6", "floor": "0.85 0.85 0.85 1"}
+COLOURS = {
+    "arm": "0.55 0.1 0.1 1",
+    "joint": "0.15 0.15 0.15 1",
+    "torso": "0.25 0.25 0.28 1",
+    "table": "0.6 0.45 0.3 1",
+    "target": "0.2 0.9 0.3 0.6",
+    "floor": "0.85 0.85 0.85 1",
+}
 
 
 def _vec(values) -> str:
@@ -124,8 +193,7 @@ def _add(parent: ET.Element, tag: str, **attributes) -> ET.Element:
 
 def _scene_geom(parent: ET.Element, name: str, colour: str = "torso", **attributes) -> None:
     """A static geom that both arms collide with."""
-    _add(parent, "geom", name=name, contype=SCENE, conaffinity=RIGHT_ARM | LEFT_ARM, rgba=COLOURS[colour],
-         **attributes)
+    _add(parent, "geom", name=name, contype=SCENE, conaffinity=RIGHT_ARM | LEFT_ARM, rgba=COLOURS[colour], **attributes)
 
 
 def _table_legs(world: ET.Element) -> None:
@@ -134,8 +202,16 @@ def _table_legs(world: ET.Element) -> None:
     for sx in (-1, 1):
         for sy in (-1, 1):
             leg = (x + sx * (dx - 0.05), y + sy * (dy - 0.05))
-            _add(world, "geom", name=f"table_leg_{sx}{sy}".replace("-", "m"), contype=0, conaffinity=0,
-                 fromto=_vec((*leg, FLOOR_HEIGHT, *leg, z - dz)), size=0.03, rgba=COLOURS["table"])
+            _add(
+                world,
+                "geom",
+                name=f"table_leg_{sx}{sy}".replace("-", "m"),
+                contype=0,
+                conaffinity=0,
+                fromto=_vec((*leg, FLOOR_HEIGHT, *leg, z - dz)),
+                size=0.03,
+                rgba=COLOURS["table"],
+            )
 
 
 def _arm(torso: ET.Element, side: str, moving: bool) -> None:
@@ -144,9 +220,10 @@ def _arm(torso: ET.Element, side: str, moving: bool) -> None:
     bits = ARM_BITS[side]
     other = LEFT_ARM if side == "right" else RIGHT_ARM
     parent = _add(torso, "body", name=f"{side}_arm_mount", pos=_vec(mount), euler=_vec((0, 0, yaw)))
-    for joint, angle in zip(ARM, neutral_pose(side)):
-        body = _add(parent, "body", name=f"{side}_{joint.name}", pos=_vec(joint.origin), euler=_vec(joint.rpy),
-                    gravcomp=1)
+    for joint, angle in zip(ARM, neutral_pose(side), strict=True):
+        body = _add(
+            parent, "body", name=f"{side}_{joint.name}", pos=_vec(joint.origin), euler=_vec(joint.rpy), gravcomp=1
+        )
         if moving:
             _add(body, "joint", name=f"{side}_{joint.name}", range=_vec((joint.lower, joint.upper)))
         else:  # the joint's neutral angle as a fixed rotation about its axis
@@ -154,15 +231,32 @@ def _arm(torso: ET.Element, side: str, moving: bool) -> None:
         length = sum(np.linalg.norm(np.subtract(fromto[3:], fromto[:3])) for fromto, _ in joint.capsules)
         for k, (fromto, radius) in enumerate(joint.capsules):
             share = np.linalg.norm(np.subtract(fromto[3:], fromto[:3])) / length
-            _add(body, "geom", name=f"{side}_{joint.name}_link{k}", fromto=_vec(fromto), size=radius,
-                 mass=f"{joint.mass * share:.9g}", contype=bits, conaffinity=SCENE | other, rgba=COLOURS["arm"])
+            _add(
+                body,
+                "geom",
+                name=f"{side}_{joint.name}_link{k}",
+                fromto=_vec(fromto),
+                size=radius,
+                mass=f"{joint.mass * share:.9g}",
+                contype=bits,
+                conaffinity=SCENE | other,
+                rgba=COLOURS["arm"],
+            )
         parent = body
     hand = _add(parent, "body", name=f"{side}_hand", pos=_vec(HAND), gravcomp=1)
     fromto, radius = HAND_CAPSULE
-    _add(hand, "geom", name=f"{side}_hand", fromto=_vec(fromto), size=radius, mass=HAND_MASS, contype=bits,
-         conaffinity=SCENE | other, rgba=COLOURS["joint"])
-    _add(hand, "site", name=f"{side}_end_point", pos=_vec((0, 0, END_POINT_OFFSET)), size=0.01,
-         rgba="1 1 0 1")
+    _add(
+        hand,
+        "geom",
+        name=f"{side}_hand",
+        fromto=_vec(fromto),
+        size=radius,
+        mass=HAND_MASS,
+        contype=bits,
+        conaffinity=SCENE | other,
+        rgba=COLOURS["joint"],
+    )
+    _add(hand, "site", name=f"{side}_end_point", pos=_vec((0, 0, END_POINT_OFFSET)), size=0.01, rgba="1 1 0 1")
 
 
 def _actuators(root: ET.Element, moving_arms: tuple[str, ...]) -> None:
@@ -170,9 +264,15 @@ def _actuators(root: ET.Element, moving_arms: tuple[str, ...]) -> None:
     for side in moving_arms:
         for joint in ARM:
             name = f"{side}_{joint.name}"
-            _add(actuators, "velocity", name=name, joint=name, kv=VELOCITY_GAIN,
-                 ctrlrange=_vec((-joint.max_velocity, joint.max_velocity)),
-                 forcerange=_vec((-joint.max_effort, joint.max_effort)))
+            _add(
+                actuators,
+                "velocity",
+                name=name,
+                joint=name,
+                kv=VELOCITY_GAIN,
+                ctrlrange=_vec((-joint.max_velocity, joint.max_velocity)),
+                forcerange=_vec((-joint.max_effort, joint.max_effort)),
+            )
 
 
 def baxter_xml(moving_arms: tuple[str, ...] = SIDES) -> str:
@@ -186,8 +286,16 @@ def baxter_xml(moving_arms: tuple[str, ...] = SIDES) -> str:
     visual = _add(root, "visual")
     _add(visual, "global", offwidth=1280, offheight=960)
     assets = _add(root, "asset")
-    _add(assets, "texture", type="skybox", builtin="gradient", rgb1="0.55 0.65 0.8", rgb2="0.1 0.1 0.15",
-         width=64, height=64)
+    _add(
+        assets,
+        "texture",
+        type="skybox",
+        builtin="gradient",
+        rgb1="0.55 0.65 0.8",
+        rgb2="0.1 0.1 0.15",
+        width=64,
+        height=64,
+    )
     default = _add(root, "default")
     _add(default, "joint", damping=JOINT_DAMPING, armature=ARMATURE, solreflimit=f"{LIMIT_TIME_CONSTANT} 1")
     _add(default, "geom", type="capsule")
@@ -206,8 +314,16 @@ def baxter_xml(moving_arms: tuple[str, ...] = SIDES) -> str:
         _arm(torso, side, moving=side in moving_arms)
     for side in moving_arms:
         target = _add(world, "body", name=f"{side}_target", mocap="true")
-        _add(target, "geom", name=f"{side}_target", type="sphere", size=TARGET_RADIUS, contype=0, conaffinity=0,
-             rgba=COLOURS["target"])
+        _add(
+            target,
+            "geom",
+            name=f"{side}_target",
+            type="sphere",
+            size=TARGET_RADIUS,
+            contype=0,
+            conaffinity=0,
+            rgba=COLOURS["target"],
+        )
     _actuators(root, moving_arms)
     ET.indent(root)
     return ET.tostring(root, encoding="unicode")
@@ -224,9 +340,11 @@ def import_mujoco():
     try:
         import mujoco
     except (ImportError, AttributeError, OSError) as error:  # AttributeError: PyOpenGL without its library
-        raise ImportError(f"MuJoCo failed to import with MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {error!r}. Set "
-                          "MUJOCO_GL=egl (Debian: libegl1 libegl-mesa0), osmesa (libosmesa6) or disable (physics "
-                          "without rendering)") from error
+        raise ImportError(
+            f"MuJoCo failed to import with MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {error!r}. Set "
+            "MUJOCO_GL=egl (Debian: libegl1 libegl-mesa0), osmesa (libosmesa6) or disable (physics "
+            "without rendering)"
+        ) from error
     return mujoco
 
 

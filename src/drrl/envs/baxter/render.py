@@ -30,14 +30,18 @@ class SceneRenderer:
             raise RuntimeError(
                 f"headless rendering failed with MUJOCO_GL={os.environ.get('MUJOCO_GL', '(unset)')}: {error}. "
                 "Set MUJOCO_GL=egl (Debian: libegl1 libegl-mesa0) or MUJOCO_GL=osmesa (libosmesa6) before drrl "
-                "imports MuJoCo") from error
+                "imports MuJoCo"
+            ) from error
         flags = self._renderer.scene.flags
         flags[mujoco.mjtRndFlag.mjRND_SHADOW] = shadows
         flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = shadows
         self._camera = mujoco.MjvCamera()
         self._camera.lookat[:] = VIEW["lookat"]
-        self._camera.distance, self._camera.azimuth, self._camera.elevation = (VIEW["distance"], VIEW["azimuth"],
-                                                                               VIEW["elevation"])
+        self._camera.distance, self._camera.azimuth, self._camera.elevation = (
+            VIEW["distance"],
+            VIEW["azimuth"],
+            VIEW["elevation"],
+        )
 
     def render(self, data) -> np.ndarray:
         """The scene of ``data`` (a ``mujoco.MjData``) as uint8 RGB."""

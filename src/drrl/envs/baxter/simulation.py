@@ -27,8 +27,9 @@ class BaxterBatch:
     defaults to every available core (at most one per simulation).
     """
 
-    def __init__(self, num_sims: int, moving_arms: tuple[str, ...] = SIDES, substeps: int = 5,
-                 threads: int | None = None) -> None:
+    def __init__(
+        self, num_sims: int, moving_arms: tuple[str, ...] = SIDES, substeps: int = 5, threads: int | None = None
+    ) -> None:
         mujoco = import_mujoco()
         from mujoco.batch import Batch
 
@@ -82,8 +83,10 @@ class BaxterBatch:
         if self._warning_counts.any():
             sims, kinds = np.nonzero(self._warning_counts)
             names = sorted({self._warning_names[k] for k in kinds})
-            raise RuntimeError(f"MuJoCo warned ({', '.join(names)}) in simulation(s) {sorted(set(sims.tolist()))}: "
-                               f"their physics is no longer valid")
+            raise RuntimeError(
+                f"MuJoCo warned ({', '.join(names)}) in simulation(s) {sorted(set(sims.tolist()))}: "
+                f"their physics is no longer valid"
+            )
 
     def data(self, sim: int = 0):
         """Simulation ``sim`` as a ``mujoco.MjData`` (a copy), e.g. to render it."""

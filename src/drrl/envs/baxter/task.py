@@ -68,9 +68,11 @@ def check_in_workspace(points, side: str, what: str = "target") -> None:
         raise ValueError(f"{what} for the {side} arm must be finite (x, y, z) points, got {points.tolist()}")
     outside = np.any((points < low) | (points > high), axis=-1)
     if outside.any():
-        raise ValueError(f"{what} {points.reshape(-1, 3)[outside.reshape(-1)][0].tolist()} is outside the {side} "
-                         f"arm's reachable workspace, the box from {low.tolist()} to {high.tolist()} (metres, base "
-                         f"frame)")
+        raise ValueError(
+            f"{what} {points.reshape(-1, 3)[outside.reshape(-1)][0].tolist()} is outside the {side} "
+            f"arm's reachable workspace, the box from {low.tolist()} to {high.tolist()} (metres, base "
+            f"frame)"
+        )
 
 
 @dataclass(frozen=True)
@@ -151,8 +153,9 @@ class ReachTask:
         """
         n = len(qpos)
         offsets = (targets - end_points) / OFFSET_UNIT
-        return np.concatenate([qpos, qvel / self.max_velocity, targets.reshape(n, -1), offsets.reshape(n, -1)],
-                              axis=1, dtype=np.float32)
+        return np.concatenate(
+            [qpos, qvel / self.max_velocity, targets.reshape(n, -1), offsets.reshape(n, -1)], axis=1, dtype=np.float32
+        )
 
     def at_limit(self, qpos: np.ndarray) -> np.ndarray:
         """Whether any joint has reached its position limit, (n,)."""
@@ -196,11 +199,16 @@ def reach_verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) -> di
     ``max_steps`` cut shortens them and makes holding easier) and the thesis reward (not the dense one)."""
     held = (torch.as_tensor(episode_returns) >= -HORIZON / 2) & ~torch.as_tensor(terminated, dtype=torch.bool)
     fraction = float(held.double().mean())
-    return {"held_95": fraction >= 0.95, "held_80": fraction >= 0.80,
-            "no_failure": not bool(torch.as_tensor(terminated).any())}
+    return {
+        "held_95": fraction >= 0.95,
+        "held_80": fraction >= 0.80,
+        "no_failure": not bool(torch.as_tensor(terminated).any()),
+    }
 
 
 def explain_reach(episode_returns: torch.Tensor, terminated: torch.Tensor) -> str:
     kept = int((~torch.as_tensor(terminated, dtype=torch.bool)).sum())
-    return (f"({kept}/{terminated.numel()} episodes without a failure; held: every end-point within 0.05 m of its "
-            f"target for at least half of the episode)")
+    return (
+        f"({kept}/{terminated.numel()} episodes without a failure; held: every end-point within 0.05 m of its "
+        f"target for at least half of the episode)"
+    )
