@@ -120,7 +120,7 @@ def write_csv(curves: list[Curve], path: Path) -> None:
 
 
 def plot(curves: list[Curve], path: Path, env: str, eval_episodes: int) -> None:
-    """compare.png: :func:`comparison_figure`."""
+    """compare.png: ``comparison_figure``."""
     import matplotlib.pyplot as plt
 
     figure = comparison_figure(curves, env, eval_episodes)

@@ -47,8 +47,8 @@ class TrainConfig(BaseModel):
     centre from drifting away from the optimum once there.
 
     ``model_based`` set makes a model-based run; the fields it leaves unset then start from
-    :data:`~drrl.models.settings.MODEL_BASED_DEFAULTS` instead of the model-free defaults. A model-free run on an
-    env that is not drrl's own starts from :data:`GYMNASIUM_DEFAULTS` instead. Both merge in one place. sampler,
+    ``MODEL_BASED_DEFAULTS`` instead of the model-free defaults. A model-free run on an
+    env that is not drrl's own starts from ``GYMNASIUM_DEFAULTS`` instead. Both merge in one place. sampler,
     optimizer, center_lr, sigma_lr, fitness_shaping, baseline_decay and max_sigma_change are
     PGPE's; CMA-ES (``search = "cmaes"`` or ``"sep-cmaes"``) uses popsize, sigma_init and seed only.
     """

@@ -1,16 +1,16 @@
 """The one training loop, for both worlds (thesis 2.4, Algorithm 2; 2.3 for the model-based world).
 
 A search asks for candidates and is told their returns; it never knows whether they came from the real environment
-or from a learned model. :func:`run_generation` is that ask → evaluate on a backend → tell, and a :class:`World`
+or from a learned model. ``run_generation`` is that ask → evaluate on a backend → tell, and a ``World``
 says what one step of the loop does with it:
 
 * model-free (``drrl.model_free``): one generation on the real environment;
 * model-based (``drrl.model_based``): collect real episodes, fit the world model, then generations inside it.
 
-:func:`run` is the loop around any world: after each step it measures the centre policy on real episodes when due
+``run`` is the loop around any world: after each step it measures the centre policy on real episodes when due
 (counted apart, never as training), keeps the best measured centre, appends a metrics row, and hands the row and,
 when due, a checkpoint of the whole state to its subscribers (the run folder, the progress bar, TensorBoard). On
-Ctrl-C, SIGTERM or an error the last whole step's state is checkpointed, and :func:`restore` continues from it to
+Ctrl-C, SIGTERM or an error the last whole step's state is checkpointed, and ``restore`` continues from it to
 exactly the metrics of an uninterrupted run (wall time aside): every random number derives from the run seed and
 the step, or lives in a saved state.
 """
@@ -123,7 +123,7 @@ class World(ABC):
         return {}
 
     def load_state_dict(self, state: dict) -> None:  # noqa: B027 (optional: a world without state keeps nothing)
-        """Restore :meth:`state_dict`."""
+        """Restore ``state_dict``."""
 
     def title(self, setup: Setup) -> str:
         return f"{setup.entry.env_id}, {setup.config.policy} policy, {setup.config.search}"
@@ -166,7 +166,7 @@ class Subscriber:
 
 
 def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters | None = None) -> Counters:
-    """Step ``setup.world`` to the end of its budget; ``counters`` (from :func:`restore`) continue a run."""
+    """Step ``setup.world`` to the end of its budget; ``counters`` (from ``restore``) continue a run."""
     counters = Counters() if counters is None else counters
     snapshot = checkpoint_state(setup, counters)
     for subscriber in subscribers:
@@ -223,7 +223,7 @@ def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
 
 
 def deployed_center(setup: Setup) -> torch.Tensor:
-    """The search's centre μ as the env runs it (:meth:`World.deployed`)."""
+    """The search's centre μ as the env runs it (``World.deployed``)."""
     return setup.world.deployed(setup.search.center[None])[0]
 
 
@@ -254,7 +254,7 @@ def _sigterm_as_interrupt():
 
 
 def checkpoint_state(setup: Setup, counters: Counters) -> dict:
-    """The run's state between steps, for ``RunFolder.save_checkpoint`` and :func:`restore`."""
+    """The run's state between steps, for ``RunFolder.save_checkpoint`` and ``restore``."""
     search = setup.search
     best = search.center if counters.best_center is None else counters.best_center
     return {

@@ -1,12 +1,12 @@
 """Model-based PGPE: the search pointed at a learned world model, with a data loop around it (thesis 2.3, 5.1).
 
-One step of the loop (:func:`drrl.loop.run`) is one iteration:
+One step of the loop (``drrl.loop.run``) is one iteration:
     1. collect real episodes with the current centre policy μ and exploring candidates μ ± ε from the search;
     2. fit the world model(s) to all real episodes so far (``drrl.models.fit``; later fits start from the previous
        weights);
-    3. run the search inside the model (an :class:`~drrl.models.imagined.ImaginedEnv`, made by every backend worker
-       from an :class:`~drrl.models.imagined.ImaginedWorld`), from real start states, for at most
-       ``model_based.generations`` generations of :func:`drrl.loop.run_generation`, the model-free generation,
+    3. run the search inside the model (an ``ImaginedEnv``, made by every backend worker
+       from an ``ImaginedWorld``), from real start states, for at most
+       ``model_based.generations`` generations of ``drrl.loop.run_generation``, the model-free generation,
        stopping early once the candidates' mean imagined return stops improving;
 then the loop measures μ on fresh real episodes (``eval_episodes``), counted as evaluation, never as training.
 Iterations repeat until the budget of real training episodes is spent. Real steps and episodes are counted exactly
@@ -14,7 +14,7 @@ Iterations repeat until the budget of real training episodes is spent. Real step
 the model, the real episodes and the search, so a stopped run resumes exactly.
 
 Divergence: a model whose loss turns non-finite, or imagined returns that do, stop the run with
-:class:`ModelDiverged`; the checkpoint keeps the last whole iteration (its model, real episodes and search), so
+``ModelDiverged``; the checkpoint keeps the last whole iteration (its model, real episodes and search), so
 nothing before it is lost and no policy is trained on a broken model.
 """
 

@@ -1,6 +1,6 @@
 """Model-free training: the search on the real environment (thesis 2.4, Algorithm 2).
 
-One step of the loop (:func:`drrl.loop.run`) is one generation: ask for P candidates, run them for E real
+One step of the loop (``drrl.loop.run``) is one generation: ask for P candidates, run them for E real
 episodes each in one batched rollout on the backend, tell the search their mean returns. The loop then measures
 the centre policy μ on separate episodes, counted apart: every ``eval_every`` generations as long as measuring
 takes at most ``eval_share`` of the run's env steps (a quarter by default: 50 measuring episodes after every
@@ -9,8 +9,8 @@ every ``checkpoint_every`` generations; episode seeds derive from the run seed a
 environment state needs saving.
 
 With ``observation_norm`` the search's policies act on observations normalised by the mean and std of all training
-observations before this generation (:mod:`drrl.rollout.moments`; not in the thesis). The env runs them with the
-normalisation folded into their first layer (:meth:`~drrl.policies.base.Policy.fold_input`), so backends, measuring
+observations before this generation (``drrl.rollout.moments``; not in the thesis). The env runs them with the
+normalisation folded into their first layer (``fold_input``), so backends, measuring
 and ``drrl eval`` see plain policies, and the best centre is kept as the env ran it.
 """
 

@@ -46,7 +46,7 @@ class RunFolder:
 
     @classmethod
     def create(cls, path: Path | str) -> RunFolder:
-        """Make a new, empty run folder, held by this process (:meth:`claim`); refuse one that holds files."""
+        """Make a new, empty run folder, held by this process (``claim``); refuse one that holds files."""
         path = Path(path)
         try:
             path.mkdir(parents=True, exist_ok=True)
@@ -62,7 +62,7 @@ class RunFolder:
 
     def claim(self) -> RunFolder:
         """Hold the folder for this run: another process that tries to train or resume into it is refused until
-        :meth:`release` or this process ends, however it ends (the operating system drops the hold of a killed
+        ``release`` or this process ends, however it ends (the operating system drops the hold of a killed
         process). A no-op where the platform has no ``flock``."""
         if fcntl is None or self._hold is not None:
             return self
@@ -172,7 +172,7 @@ class RunFolder:
         return config, checkpoint
 
     def plot_learning_curve(self, title: str, best_step: int | None = None, eval_episodes: int | None = None) -> Path:
-        """learning_curve.png: :func:`learning_curve` of this run's metrics."""
+        """learning_curve.png: ``learning_curve`` of this run's metrics."""
         import matplotlib.pyplot as plt
 
         figure = learning_curve(self.read_metrics(), title, best_step, eval_episodes)

@@ -1,11 +1,11 @@
-"""What the training loop tells the outside: subscribers of :func:`drrl.loop.run`, attached, not wired in.
+"""What the training loop tells the outside: subscribers of ``drrl.loop.run``, attached, not wired in.
 
-* :class:`RunFolderWriter`: config.json, a metrics.csv row per step, checkpoints, the learning curve at the end;
-* :class:`ProgressBar`: real episodes spent, with the step's returns (tqdm);
-* :class:`TensorBoardLogger`: every metric against real training episodes (``drrl[tensorboard]``);
-* :class:`ModelGuard`: a warning when the world model promises the centre far more than reality gives it.
+* ``RunFolderWriter``: config.json, a metrics.csv row per step, checkpoints, the learning curve at the end;
+* ``ProgressBar``: real episodes spent, with the step's returns (tqdm);
+* ``TensorBoardLogger``: every metric against real training episodes (``drrl[tensorboard]``);
+* ``ModelGuard``: a warning when the world model promises the centre far more than reality gives it.
 
-A subscriber overrides any of :class:`drrl.loop.Subscriber`'s ``started``, ``row``, ``checkpoint`` and ``ended``;
+A subscriber overrides any of ``drrl.loop.Subscriber``'s ``started``, ``row``, ``checkpoint`` and ``ended``;
 a benchmark attaches its own probe the same way.
 """
 

@@ -1,7 +1,7 @@
-"""Training runs: build a run's pieces from its config, then run the one loop (:mod:`drrl.loop`) in its world.
+"""Training runs: build a run's pieces from its config, then run the one loop (``drrl.loop``) in its world.
 
-``config.model_based`` unset: model-free training (:class:`~drrl.model_free.ModelFree`), every generation on the
-real environment. Set: model-based training (:class:`~drrl.model_based.ModelBased`), generations inside a world
+``config.model_based`` unset: model-free training (``ModelFree``), every generation on the
+real environment. Set: model-based training (``ModelBased``), generations inside a world
 model fitted to real episodes. Both run through the same loop, backends, checkpoints and subscribers, and both
 resume from their checkpoint to exactly the metrics of an uninterrupted run.
 """

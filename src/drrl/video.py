@@ -1,7 +1,7 @@
 """Videos of a trained policy (``drrl render``): one episode of a run's centre policy as a GIF or an MP4.
 
 Any environment that draws ``rgb_array`` frames works: drrl's cart-poles draw in NumPy, Baxter through MuJoCo's
-OpenGL renderer, headless (EGL, else OSMesa: :mod:`drrl.envs.baxter.render`). GIFs are written with Pillow
+OpenGL renderer, headless (EGL, else OSMesa: ``drrl.envs.baxter.render``). GIFs are written with Pillow
 (installed with matplotlib); MP4s (H.264) with imageio-ffmpeg, the optional extra ``drrl[render]``, which ships its
 own ffmpeg binary.
 """
@@ -119,7 +119,7 @@ def record_episode(
     max_steps: int | None = None,
 ) -> Recording:
     """Run the policy ``center`` (n,) for one episode of ``env`` (render_mode "rgb_array") through the rollout that
-    trains and measures (:func:`drrl.rollout.evaluate`, episode seed from ``seed``), keeping a frame at the start,
+    trains and measures (``drrl.rollout.evaluate``, episode seed from ``seed``), keeping a frame at the start,
     then every k-th step, k = the env's ``render_fps`` / ``fps`` rounded (at least 1), and at the end."""
     rate = env.metadata.get("render_fps", fps)
     recorder = FrameRecorder(env, period=max(1, round(rate / fps)))

@@ -1,11 +1,11 @@
-"""drrl's environments, registered with Gymnasium and with drrl's registry (:mod:`drrl.envs.registry`) on import.
+"""drrl's environments, registered with Gymnasium and with drrl's registry (``drrl.envs.registry``) on import.
 
 ``gymnasium.make(id)`` gives the single environment and ``gymnasium.make_vec(id, num_envs=N)`` the native batch:
 
 * ``drrl/CartPole-v0`` (``cartpole``): the thesis's balance task (5.1), fully observed;
 * ``drrl/CartPolePO-v0`` (``cartpole-po``): the same task observing only (s, θ), a POMDP (2.1.1);
 * ``drrl/CartPoleSwingUp-v0`` (``cartpole-swingup``): swing the pole up from hanging down and hold it upright;
-* ``drrl/BaxterReach*-v0`` (``baxter-reach*``): Baxter's arms in MuJoCo (5.2), :mod:`drrl.envs.baxter`.
+* ``drrl/BaxterReach*-v0`` (``baxter-reach*``): Baxter's arms in MuJoCo (5.2), ``drrl.envs.baxter``.
 
 The environments end episodes at the task's horizon themselves, so no TimeLimit wrapper is registered.
 """

@@ -1,14 +1,14 @@
 """The one batched-environment interface: Gymnasium's ``VectorEnv``, made by one of three engines.
 
 * ``native``: drrl's own environments, NumPy or MuJoCo batches (``gymnasium.make_vec`` returns them).
-* ``envpool``: EnvPool's C++ batches of Gymnasium's classic-control and MuJoCo tasks (:mod:`drrl.envs.pool`).
+* ``envpool``: EnvPool's C++ batches of Gymnasium's classic-control and MuJoCo tasks (``drrl.envs.pool``).
 * ``gymnasium``: any other registered env with a 1-D Box observation and a Box or Discrete action, one Gymnasium
-  env per slot stepped in turn (:mod:`drrl.envs.serial`). Gymnasium's own native vector envs are not used: they
+  env per slot stepped in turn (``drrl.envs.serial``). Gymnasium's own native vector envs are not used: they
   take one reset seed for the whole batch, and drrl gives every episode its own.
 
 ``auto`` picks the first that can run the id; a run records the engine it used in its config. ``ActionMap`` turns
 a policy's raw outputs into actions of the env's action space. An ``EnvSource`` names a batched env so that
-another process can make it: a registered id here, a learned model in :mod:`drrl.models.imagined`.
+another process can make it: a registered id here, a learned model in ``drrl.models.imagined``.
 """
 
 from __future__ import annotations

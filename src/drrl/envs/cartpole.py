@@ -11,16 +11,16 @@ State, in the thesis's order: (s, ṡ, θ, θ̇) = cart position, cart velocity,
 leaning towards +s), angular velocity. An action in [-1, 1] is clipped and scaled to a force of ±50 N.
 
 Tasks are small objects (start distribution, observation, reward and termination) so that variants slot in next
-to :class:`BalanceTask` without touching the physics or the environments:
+to ``BalanceTask`` without touching the physics or the environments:
 
-* :class:`BalanceTask` (``drrl/CartPole-v0``): the thesis's task, 5.1 with the reward 5.8, T = 200 steps (4 s).
-* :class:`PartiallyObservedTask` (``drrl/CartPolePO-v0``): the same task observing only (s, θ). The velocities are
+* ``BalanceTask`` (``drrl/CartPole-v0``): the thesis's task, 5.1 with the reward 5.8, T = 200 steps (4 s).
+* ``PartiallyObservedTask`` (``drrl/CartPolePO-v0``): the same task observing only (s, θ). The velocities are
   hidden, so the environment is a POMDP (thesis 2.1.1) and a policy must infer them from what it has seen.
   Solved means the same as for the balance task. Note that "balanced" alone does not need memory: the static
   feedback a = 0.25·θ keeps every start inside the bounds for 200 steps, swinging undamped (a static feedback of
   (s, θ) cannot damp the pole: the linearised loop has no velocity terms). Reaching the centre, which the reward
   pays for and "near-optimal" asks, needs the velocities.
-* :class:`SwingUpTask` (``drrl/CartPoleSwingUp-v0``): the pole starts hanging down and must be swung up and held
+* ``SwingUpTask`` (``drrl/CartPoleSwingUp-v0``): the pole starts hanging down and must be swung up and held
   upright, the model-based benchmark of PILCO and PETS, on the thesis's cart (±50 N). See its docstring for the
   start, observation, reward, horizon and what "solved" means.
 """
@@ -220,7 +220,7 @@ class SwingUpTask:
     slope to climb. The cart term keeps the cart near the centre. Leaving the track costs 1 per remaining step,
     more than any step on the track, so that ending the episode never pays (as 5.8's −2·(T − t) does).
     Horizon: T = 250 steps (5 s at dt = 0.02): time to swing up (about 1–2 s with ±50 N) and to show the pole held.
-    Solved (:func:`swing_up_verdict`): in 50 of 50 evaluation episodes the cart stays on the
+    Solved (``swing_up_verdict``): in 50 of 50 evaluation episodes the cart stays on the
     track and the return is at least 160 (of at most 250). Hanging still earns about 0 and a pole that keeps
     turning over earns about half a point a step (≈ 125), so ≥ 160 needs the pole near the top most of the time.
     """
@@ -407,7 +407,7 @@ class CartPoleVectorEnv(gym.vector.VectorEnv):
 
 
 class CartPoleEnv(gym.Env):
-    """A single cart-pole: the same physics and task as :class:`CartPoleVectorEnv` with one env, no autoreset.
+    """A single cart-pole: the same physics and task as ``CartPoleVectorEnv`` with one env, no autoreset.
 
     ``state`` holds the raw float64 state (4,).
     """

@@ -1,7 +1,7 @@
 """Gymnasium's envs, one per slot, stepped in turn: the engine for any registered id, with nothing else installed.
 
 The same envs and seeds as Gymnasium's ``SyncVectorEnv``, so the same episodes, but an ended episode's env is not
-stepped again (:class:`~drrl.envs.slots.EpisodeSlots`).
+stepped again (``EpisodeSlots``).
 """
 
 from __future__ import annotations

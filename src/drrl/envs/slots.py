@@ -1,7 +1,7 @@
 """Vector envs that run one episode in each sub-environment and then leave it be, so that no step is wasted.
 
 drrl evaluates all of a generation's episodes in one batch, one episode a slot, and stops counting an episode once it
-has ended (:func:`drrl.rollout.evaluate`). An engine that steps its sub-environments apart (Gymnasium's envs in turn,
+has ended (``drrl.rollout.evaluate``). An engine that steps its sub-environments apart (Gymnasium's envs in turn,
 EnvPool's C++ threads) need not step an ended one at all: here it stays where it ended, reward 0 and its end flags
 kept, until the next reset. Every sub-environment step computed is then a step counted; Gymnasium's own vector envs
 instead restart an ended env and step it on (its autoreset), which on episodes of uneven length computed about eight
@@ -23,7 +23,7 @@ from gymnasium.vector.utils import batch_space
 class EpisodeSlots(VectorEnv):
     """``num_envs`` sub-environments, each running one episode from its reset and idle once it ends.
 
-    Subclasses start episodes (:meth:`start`) and step running sub-environments (:meth:`advance`).
+    Subclasses start episodes (``start``) and step running sub-environments (``advance``).
     """
 
     metadata = {"autoreset_mode": AutoresetMode.DISABLED}

@@ -1,7 +1,7 @@
 """Recurrent world models (thesis 3.3–3.5): learned models of an environment, their fitting, and the model as a
 batched env.
 
-The interface is :class:`~drrl.models.base.LearnedModel`; fitting is ``drrl.models.fit.fit``; the model-based world,
+The interface is ``LearnedModel``; fitting is ``drrl.models.fit.fit``; the model-based world,
 a part of the training loop, lives one layer up in ``drrl.model_based``. This package imports of drrl only the
 Elman policies' cell (``drrl.policies.recurrent``); a task's closed-form reward comes in as a function.
 """

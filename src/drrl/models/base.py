@@ -2,7 +2,7 @@
 
 A model predicts, for a batch of environments, the next observation, the reward and whether the episode ends, from
 the current observation and action and its own recurrent state; it may be an ensemble of K members, each predicting.
-The recurrent models of thesis 3.3–3.5 (:class:`drrl.models.recurrent.WorldModel`) are one kind; another kind is
+The recurrent models of thesis 3.3–3.5 (``drrl.models.recurrent.WorldModel``) are one kind; another kind is
 one new module with a class of this shape (and its fitting).
 """
 

@@ -95,7 +95,7 @@ class EpisodeBuffer:
     def windows(self, unfold: int, overshoot: int) -> Windows:
         """Every window of ``unfold`` observed + ``overshoot`` overshooting steps (see the module docstring).
 
-        Needs one episode of at least ``unfold`` steps; :meth:`check_unfolding` is the stricter check for
+        Needs one episode of at least ``unfold`` steps; ``check_unfolding`` is the stricter check for
         training data, which must also hold one full window.
         """
         longest = max((len(episode) for episode in self.episodes), default=0)
@@ -106,12 +106,12 @@ class EpisodeBuffer:
         return Windows(*(torch.as_tensor(np.concatenate(parts)) for parts in zip(*pieces, strict=True)))
 
     def window_episodes(self, unfold: int) -> np.ndarray:
-        """The episode (its index in the buffer) of each of :meth:`windows`' windows, in their order."""
+        """The episode (its index in the buffer) of each of ``windows``' windows, in their order."""
         counts = [max(len(episode) - unfold + 1, 0) for episode in self.episodes]
         return np.repeat(np.arange(len(self.episodes)), counts)
 
     def scales(self) -> dict[str, torch.Tensor]:
-        """Normalisation for :meth:`WorldModel.set_scales`: means and standard deviations of the data."""
+        """Normalisation for ``WorldModel.set_scales``: means and standard deviations of the data."""
         observations = np.concatenate([episode.observations for episode in self.episodes])
         changes = np.concatenate([np.diff(episode.observations, axis=0) for episode in self.episodes])
         rewards = np.concatenate([episode.rewards for episode in self.episodes])
@@ -181,7 +181,7 @@ def model_actions(actions, space: spaces.Space) -> np.ndarray:
 
 
 def action_size(space: spaces.Space) -> int:
-    """The length of :func:`model_actions`' rows for ``space``."""
+    """The length of ``model_actions``' rows for ``space``."""
     return int(space.n) if isinstance(space, spaces.Discrete) else int(np.prod(space.shape or ()))
 
 

@@ -1,7 +1,7 @@
 """Fitting a world model to real episodes: shared-weight back-propagation through the unfolding (3.5.1).
 
-Minibatches of windows go through :meth:`WorldModel.unfold`; the squared error summed over the unfolded steps
-(:func:`unfolding_loss`) is minimised by one of the thesis's optimizers (3.5.3: Nesterov's accelerated gradient 3.24,
+Minibatches of windows go through ``WorldModel.unfold``; the squared error summed over the unfolded steps
+(``unfolding_loss``) is minimised by one of the thesis's optimizers (3.5.3: Nesterov's accelerated gradient 3.24,
 Adam with λ of Algorithm 4) or torch's own, with the step size decaying along a cosine to 0 over ``max_updates``
 (beyond the thesis: the loss is dominated by a few hard windows, e.g. of a falling pole, and a constant step keeps
 the fit jumping around). A random part of the episodes is held out; training stops once their loss has not improved
@@ -80,7 +80,7 @@ class FitReport:
 
 
 def make_model_optimizer(name: str, params, lr: float, momentum: float = 0.9) -> torch.optim.Optimizer:
-    """One of :data:`MODEL_OPTIMIZERS` with step size ``lr``."""
+    """One of ``MODEL_OPTIMIZERS`` with step size ``lr``."""
     if name == "adam_lambda":
         return AdamLambda(params, lr=lr)
     if name == "nag":

@@ -33,7 +33,7 @@ RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray
 
 @dataclass(frozen=True)
 class ImaginedWorld:
-    """What an :class:`ImaginedEnv` is made of, small enough to send to another process: the model's settings and
+    """What an ``ImaginedEnv`` is made of, small enough to send to another process: the model's settings and
     weights, the real start observations and the task's horizon and reward. ``make`` builds the env (an
     ``EnvSource`` of drrl.envs.batch), so that rollout workers can step imagined episodes as they step real ones."""
 

@@ -55,7 +55,7 @@ def model_quality_report(
     kind: str = "rnn",
     seed: int = 0,
 ) -> dict[str, np.ndarray]:
-    """Fit each of :func:`variants` on ``training`` and return (and plot to ``path``, a PNG) its k-step errors on
+    """Fit each of ``variants`` on ``training`` and return (and plot to ``path``, a PNG) its k-step errors on
     ``held_out``, k = 1..max_k."""
     observation_size = training.episodes[0].observations.shape[1]
     action_size = training.episodes[0].actions.shape[1]

@@ -8,7 +8,7 @@ observation, the reward and whether the episode ends there::
     y_t     = A s_t + c                                                   (3.7: the read-out A)
     ô_{t+1} = o_t + y_t[obs] · std(Δo),   r̂_{t+1} = y_t[reward],   p̂(end) = sigmoid(y_t[end])
 
-Finite unfolding (3.3.1): :meth:`WorldModel.unfold` copies this step over a window of L steps; the copies share
+Finite unfolding (3.3.1): ``WorldModel.unfold`` copies this step over a window of L steps; the copies share
 one set of weights, so back-propagation through the unfolded network sums every copy's gradient into the same W,
 B and A (shared-weight back-propagation, 3.5.1). The first ``observed_steps`` steps read observed data (3.8, 3.10).
 
@@ -35,7 +35,7 @@ Departures from the thesis, and why
       (i, f, o, g) and rounds its update by ``addcmul``: one shared cell would change the numbers of either the
       world models' or the LSTM policies' measured runs.
     * 3.12–3.13 print the cost as Σ (o_t − y_t), without a square, which is unbounded below and rewards any error
-      of one sign. :func:`unfolding_loss` sums the *squared* error over the unfolded steps.
+      of one sign. ``unfolding_loss`` sums the *squared* error over the unfolded steps.
     * The end-of-episode head is trained by the same squared error on its probability (the Brier score).
 
 An ensemble of K members (beyond the thesis, against the "curse of model uncertainty" it names in 2.3) is one
@@ -80,14 +80,15 @@ class WorldModel(nn.Module):
     """K stacked state-space RNNs (``kind="rnn"``, 3.4–3.11) or LSTMs (``kind="lstm"``, 3.5.2), stepped as one.
 
     Args:
-        observation_size, action_size: sizes of o_t and a_t.
+        observation_size: the size of o_t.
+        action_size: the size of a_t.
         hidden: the width of each stacked layer, e.g. (64,) or (64, 64).
         kind: "rnn" (s_t = tanh(W x_t + B s_{t−1} + b)) or "lstm".
         future_inputs: what the overshooting part reads, "predictions" (dynamical consistency) or "zeros".
         members: K, the ensemble's size; every output has a leading dimension K.
     """
 
-    # buffers: the data's scales, per member (K, o) or (K,), set by :meth:`set_scales`
+    # buffers: the data's scales, per member (K, o) or (K,), set by ``set_scales``
     observation_mean: torch.Tensor
     observation_scale: torch.Tensor
     change_scale: torch.Tensor
@@ -233,7 +234,7 @@ class WorldModel(nn.Module):
         model's own prediction ô_t (dynamical consistency), never the data. Returns each member's predictions of
         o_1..o_L, r_1..r_L and the ends, (K, B, L, …).
 
-        The same computation as L calls of :meth:`step`, with the per-step work cut to what the recurrence needs
+        The same computation as L calls of ``step``, with the per-step work cut to what the recurrence needs
         (the observed inputs are normalised at once, the reward and end heads read the stacked read-outs after
         the loop): fitting spends most of its time here.
         """
@@ -312,7 +313,7 @@ def unfolding_loss(
     mask: torch.Tensor,
     learn_reward: bool = True,
 ) -> torch.Tensor:
-    """(K,) each member's :func:`window_losses` averaged over the windows."""
+    """(K,) each member's ``window_losses`` averaged over the windows."""
     return window_losses(model, prediction, next_observations, rewards, ends, mask, learn_reward).mean(-1)
 
 

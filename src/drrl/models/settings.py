@@ -4,7 +4,7 @@ In a model-based run (``drrl.model_based``) the ``TrainConfig`` fields keep thei
 is the real training episodes to spend, ``eval_episodes`` the real episodes that measure the centre policy, and
 the search settings (policy, sampler, optimizer, σ, step sizes) describe PGPE, which now runs inside the learned
 model: ``popsize`` × ``episodes_per_candidate`` *imagined* episodes a generation, ``generations`` generations an
-iteration. :data:`MODEL_BASED_DEFAULTS` are the ``TrainConfig`` values a model-based run starts from.
+iteration. ``MODEL_BASED_DEFAULTS`` are the ``TrainConfig`` values a model-based run starts from.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ class ModelBasedSettings(BaseModel):
     """The world model, its fitting, and the data loop around PGPE.
 
     reward: "known" (the task's reward in closed form on predicted observations), "learned" (the model's reward
-    and end heads) or "auto": known where drrl knows it (``drrl.models.imagined.KNOWN_REWARDS``), learned
+    and end heads) or "auto": known where drrl knows it (the env's ``EnvEntry.reward``), learned
     elsewhere. Known is the default where possible because the thesis's 5.8 is discontinuous in the state (0
     inside |s|, |θ| ≤ 0.05, −1 outside) and depends on the step t, which the model does not observe: a learned head
     could only blur it, while the closed form is exact and free.

@@ -1,10 +1,10 @@
 """What a generation's evaluation needs, and the interface every evaluation backend offers.
 
-A backend evaluates all P candidates of a generation for E episodes each and returns one :class:`Evaluation`.
+A backend evaluates all P candidates of a generation for E episodes each and returns one ``Evaluation``.
 Episode seeds come from the seed it is given (the run seed and the generation), never from where a candidate
 ran, so every backend returns the same numbers bit for bit. The workload names its environment by an
 ``EnvSource`` (a registered id, or a learned model's weights and settings) that every worker rebuilds, and
-:meth:`Backend.use` points a backend at another workload, as the model-based loop does after each fit.
+``Backend.use`` points a backend at another workload, as the model-based loop does after each fit.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 The env must hold P·E sub-environments: candidate p's episode e runs in slot p·E + e. Every slot runs one episode;
 a slot whose episode has ended is masked (its later rewards and steps are not counted) while the others go on.
 A NaN or infinite observation, reward or return of a running episode stops the rollout with
-:class:`NonFiniteOutput`.
+``NonFiniteOutput``.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def evaluate(
     """Run each of the P candidates in ``params`` (P, n) for ``episodes`` episodes on ``env`` at once.
 
     ``max_steps`` cuts episodes that have not ended by then (for envs without a time limit of their own);
-    ``moments`` sums the observations acted on (:class:`~drrl.rollout.moments.Moments`).
+    ``moments`` sums the observations acted on (``Moments``).
     """
     population = params.shape[0]
     slots = population * episodes
@@ -120,7 +120,7 @@ def evaluate(
 
 
 def _check_finite(what: str, values: np.ndarray, running: np.ndarray, step: int, episodes: int) -> None:
-    """Raise :class:`NonFiniteOutput` naming the first running slot whose ``values`` (per slot) are not finite."""
+    """Raise ``NonFiniteOutput`` naming the first running slot whose ``values`` (per slot) are not finite."""
     if np.isfinite(values).all():
         return
     finite = np.isfinite(np.asarray(values).reshape(len(running), -1)).all(axis=1)

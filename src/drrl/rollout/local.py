@@ -12,7 +12,7 @@ from drrl.rollout.memory import retain_freed_memory
 class LocalBackend:
     """One batched env of P·E sub-environments, made once and reused every generation.
 
-    Raises this process's malloc thresholds (:func:`~drrl.rollout.memory.retain_freed_memory`).
+    Raises this process's malloc thresholds (``retain_freed_memory``).
     """
 
     def __init__(self, workload: Workload):

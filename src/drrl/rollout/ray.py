@@ -2,8 +2,8 @@
 
 Chunk k always holds the same candidates (consecutive slices of the population, one per worker) and is evaluated
 with the generation's seed, so the returns are those of the local backend bit for bit, whichever actor ran it.
-A chunk whose actor died is detected by ``ray.get`` raising :class:`ray.exceptions.RayActorError`
-(``ActorDiedError``); the chunk is run again on the next actor, up to :data:`MAX_ATTEMPTS` times, and the dead actor
+A chunk whose actor died is detected by ``ray.get`` raising ``ray.exceptions.RayActorError``
+(``ActorDiedError``); the chunk is run again on the next actor, up to ``MAX_ATTEMPTS`` times, and the dead actor
 is replaced by a new one. Parameters and results cross between processes through Ray's object store; nothing
 is read back from disk.
 """
@@ -171,7 +171,7 @@ class RayBackend:
 
 
 def _check_reachable(address: str | None) -> None:
-    """Refuse a cluster address nothing answers at, within :data:`CONNECT_TIMEOUT` seconds: Ray itself keeps
+    """Refuse a cluster address nothing answers at, within ``CONNECT_TIMEOUT`` seconds: Ray itself keeps
     retrying for many minutes."""
     if address is None or address == "auto":
         return

@@ -1,4 +1,4 @@
-"""Search over policy parameters behind one interface (:class:`~drrl.search.base.Search`): PGPE (thesis 2.4) with
+"""Search over policy parameters behind one interface (``Search``): PGPE (thesis 2.4) with
 its fitness shaping and step rules for μ, and CMA-ES (full and separable) as the reference searcher."""
 
 import torch

@@ -1,7 +1,7 @@
 """The search interface: ask for candidate parameter vectors, tell their fitness (higher is better).
 
 A search never sees an environment; where the fitness comes from is the training loop's business, so the same
-search runs on real returns (model-free) and on imagined ones (model-based). :class:`Search` does once what every
+search runs on real returns (model-free) and on imagined ones (model-based). ``Search`` does once what every
 search shares: checking the told fitness, counting generations, the generation's metrics, and the bookkeeping
 part of its state (kind, sizes, generation). A search writes only its own ``ask``, ``_update``, ``center``,
 ``spread``, ``_state`` and ``_load_state``.
@@ -48,13 +48,13 @@ class Search(ABC):
 
     @abstractmethod
     def _load_state(self, state: dict) -> None:
-        """Restore :meth:`_state`."""
+        """Restore ``_state``."""
 
     def tell(self, fitness: torch.Tensor) -> dict[str, float]:
         """Update the search from the fitness (popsize,) of the last ask's candidates, higher is better.
 
         Returns the generation's metrics as floats: "mean", "best", "worst" (raw fitness), "sigma_norm" (the norm
-        of :attr:`spread` after the update) and the search's own.
+        of ``spread`` after the update) and the search's own.
         """
         fitness = self._check_fitness(fitness)
         metrics = self._update(fitness)
@@ -79,7 +79,7 @@ class Search(ABC):
         }
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore a :meth:`state_dict`; the search must have been built with the same settings."""
+        """Restore a ``state_dict``; the search must have been built with the same settings."""
         for key in ("kind", "num_params", "popsize", "generation"):
             if key not in state:
                 raise ValueError(f"not a {self.kind} state: it lacks {key}")

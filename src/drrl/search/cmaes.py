@@ -4,7 +4,7 @@ Candidates are drawn from N(m, σ² C). Each generation moves the mean m towards
 global step size σ along an evolution path, and learns the covariance C from successful steps (Hansen &
 Ostermeier 2001, "Completely derandomized self-adaptation in evolution strategies"). ``separable=True`` keeps only
 the diagonal of C (sep-CMA-ES, Ros & Hansen 2008): O(n) per candidate instead of O(n²), for policies of thousands of
-weights. The algorithm is ``cmaes.CMA`` / ``cmaes.SepCMA``; this module only adapts it to :class:`Search`.
+weights. The algorithm is ``cmaes.CMA`` / ``cmaes.SepCMA``; this module only adapts it to ``Search``.
 
 Why it is here
     CMA-ES is not in the thesis. It is the reference searcher that users of peer libraries (EvoTorch, evosax)
@@ -158,7 +158,7 @@ def _plain(value):
 
 
 def _numpy(value):
-    """Inverse of :func:`_plain`: tensors as fresh numpy arrays (cmaes updates its arrays in place)."""
+    """Inverse of ``_plain``: tensors as fresh numpy arrays (cmaes updates its arrays in place)."""
     return value.detach().cpu().numpy().copy() if isinstance(value, torch.Tensor) else value
 
 

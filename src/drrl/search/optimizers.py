@@ -83,7 +83,7 @@ class ClipUp(torch.optim.Optimizer):
 def make_optimizer(
     name: str, params: Iterable[torch.Tensor], lr: float, options: dict | None = None
 ) -> torch.optim.Optimizer:
-    """One of :data:`OPTIMIZERS` over ``params`` with step size ``lr`` and the extra keyword ``options``."""
+    """One of ``OPTIMIZERS`` over ``params`` with step size ``lr`` and the extra keyword ``options``."""
     if name not in OPTIMIZERS:
         raise ValueError(f"unknown optimizer {name!r}; choose one of: {', '.join(OPTIMIZERS)}")
     options = dict(options or {})

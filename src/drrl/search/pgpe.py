@@ -27,8 +27,8 @@ Departures from the thesis, and why
     * The σ step of 2.32 is bounded to keep σ positive: σ ← σ · clamp(1 + Δσ/σ, 1 − c, 1 + c), c = max_sigma_change.
       The thesis leaves σ unbounded, and a plain step can make it negative.
     * The μ step may go through Adam or ClipUp instead of plain gradient ascent ("sgd", the thesis).
-    * "supersymmetric" is not in the thesis; see :func:`mirror_about_median` and
-      :func:`_supersymmetric_sigma_gradient` for how it was reconstructed.
+    * "supersymmetric" is not in the thesis; see ``mirror_about_median`` and
+      ``_supersymmetric_sigma_gradient`` for how it was reconstructed.
     * With fitness shaping, every formula sees the shaped values. Centred ranks sum to zero, so b, initialised to
       their mean, stays 0: SyS with centred ranks has the natural baseline 0.
 """
@@ -98,16 +98,16 @@ class PGPE(Search):
     Args:
         center: initial μ, shape (n,). The search keeps a float32 copy on the same device.
         popsize: candidates per generation P; even for "symmetric", a multiple of 4 for "supersymmetric".
-        sampler: one of :data:`SAMPLERS`.
+        sampler: one of ``SAMPLERS``.
         sigma_init: initial σ of every parameter.
         center_lr: step size of μ. For "sgd" it multiplies the gradient estimate, whose size is the fitness
             scale times σ² (2.31). Rough guides: raw returns spanning a few hundred (the thesis's cart-pole) with
             σ ≈ 1, about 1e-3 … 1e-2; "centered_ranks", about 0.1 … 2. For "adam" and "clipup" it is a step length
             in parameter units (e.g. 0.01 … 0.2), independent of the fitness scale.
         sigma_lr: step size of σ (2.32), plain gradient ascent; the same scale considerations as center_lr/sgd.
-        optimizer: step rule for μ, one of :data:`OPTIMIZERS`; "sgd" is the thesis's plain gradient ascent.
+        optimizer: step rule for μ, one of ``OPTIMIZERS``; "sgd" is the thesis's plain gradient ascent.
         optimizer_options: extra keyword arguments of that optimizer (e.g. momentum, betas, max_speed).
-        fitness_shaping: one of :data:`FITNESS_SHAPINGS`.
+        fitness_shaping: one of ``FITNESS_SHAPINGS``.
         baseline_decay: weight of the old baseline in 2.33 (the thesis: 0.1). Not used by "supersymmetric".
         max_sigma_change: bound c on the relative change of σ per generation, 0 < c < 1.
         seed: seed of the search's own random generator.

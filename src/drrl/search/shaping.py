@@ -31,7 +31,7 @@ def centered_ranks(fitness: torch.Tensor) -> torch.Tensor:
 
 
 def shape_fitness(fitness: torch.Tensor, shaping: str) -> torch.Tensor:
-    """``fitness`` shaped by one of :data:`FITNESS_SHAPINGS`."""
+    """``fitness`` shaped by one of ``FITNESS_SHAPINGS``."""
     if shaping == "none":
         return fitness
     if shaping == "centered_ranks":

@@ -1,8 +1,8 @@
 """The Baxter reach environments (thesis 5.2): joint angles and velocities in, joint angular velocities out.
 
 ``BaxterReachVectorEnv`` is drrl's native batched env (``gymnasium.make_vec``), ``BaxterReachEnv`` the single one
-(``gymnasium.make``); both run the physics of :mod:`drrl.envs.baxter.simulation` and the task of
-:mod:`drrl.envs.baxter.task`. An action is one angular velocity per joint in rad/s, in a Box bounded by the joints'
+(``gymnasium.make``); both run the physics of ``drrl.envs.baxter.simulation`` and the task of
+``drrl.envs.baxter.task``. An action is one angular velocity per joint in rad/s, in a Box bounded by the joints'
 velocity limits; actions beyond them are clipped to them (drrl's ActionMap already maps policy outputs onto the
 Box), while actions of the wrong shape or with NaN or infinite entries raise ValueError.
 
@@ -69,7 +69,7 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
 
     ``reset(seed=int)`` seeds one generator for all starts, targets and noise of the batch; ``reset(seed=[s_0,
     ...])`` gives env i its own generator ``np.random.default_rng(s_i)``, so that its episodes depend only on s_i.
-    Task options (``arms``, ``targets``, ``reward``, ``action_noise``, ...) are those of :class:`ReachTask`.
+    Task options (``arms``, ``targets``, ``reward``, ``action_noise``, ...) are those of ``ReachTask``.
     ``info["distance"]`` holds each env's largest end-point-to-target distance (m) after the step. ``width``,
     ``height`` and ``shadows`` set the rgb_array frames (shadows and reflections cost about 5× the frame time).
     """

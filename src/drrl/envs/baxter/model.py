@@ -333,7 +333,7 @@ def import_mujoco():
     """The ``mujoco`` module, imported when a Baxter is first made (not when drrl is imported).
 
     MuJoCo picks its OpenGL backend when first imported, and fails to import if that backend's library is missing.
-    Unless ``MUJOCO_GL`` is set, we pick a headless one on Linux (:func:`headless_gl`).
+    Unless ``MUJOCO_GL`` is set, we pick a headless one on Linux (``headless_gl``).
     """
     if "mujoco" not in sys.modules and "MUJOCO_GL" not in os.environ and sys.platform.startswith("linux"):
         os.environ["MUJOCO_GL"] = headless_gl()

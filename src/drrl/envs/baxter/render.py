@@ -1,10 +1,10 @@
 """Pictures of Baxter, rendered headless with MuJoCo's OpenGL renderer.
 
-MuJoCo picks its GL backend when first imported: :func:`drrl.envs.baxter.model.import_mujoco` makes that EGL if
+MuJoCo picks its GL backend when first imported: ``drrl.envs.baxter.model.import_mujoco`` makes that EGL if
 libEGL is found (Mesa's llvmpipe draws on CPU-only machines), else OSMesa if libOSMesa is, unless ``MUJOCO_GL``
 says otherwise. With neither, the physics runs and rendering raises an error that says what to install.
 Shadows and reflections are off by default: on a CPU-only machine they cost about five times the frame time.
-Writing frames as videos is :mod:`drrl.video`'s job.
+Writing frames as videos is ``drrl.video``'s job.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ VIEW = {"lookat": (0.4, 0.0, 0.05), "distance": 2.2, "azimuth": 195.0, "elevatio
 
 
 class SceneRenderer:
-    """RGB frames (height, width, 3) of one model's simulations, from :data:`VIEW`."""
+    """RGB frames (height, width, 3) of one model's simulations, from ``VIEW``."""
 
     def __init__(self, model, width: int = 320, height: int = 240, shadows: bool = False) -> None:
         mujoco = import_mujoco()

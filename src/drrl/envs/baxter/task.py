@@ -81,7 +81,7 @@ class ReachTask:
 
     ``targets``: "fixed" puts each arm's target at ``fixed_target`` (the thesis's setting; right-arm coordinates,
     mirrored for the left arm); "random" draws it per episode uniformly from ``target_box``. Both must lie in
-    :data:`WORKSPACE`. ``action_noise``: the commanded joint velocities get Gaussian noise of this many times each
+    ``WORKSPACE``. ``action_noise``: the commanded joint velocities get Gaussian noise of this many times each
     joint's velocity limit per control step (5.2.1: "the transition function follows physical law with some noise").
     """
 
@@ -195,7 +195,7 @@ def reach_verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) -> di
     random targets); no_failure: no episode touched anything or hit a joint limit.
 
     The reach criterion proper, where an episode *ends*, needs the final distance, which a return does not hold:
-    benchmarks/baxter_reach.py measures it with :func:`reach_fraction`. Assumes episodes of the full horizon (a
+    benchmarks/baxter_reach.py measures it with ``reach_fraction``. Assumes episodes of the full horizon (a
     ``max_steps`` cut shortens them and makes holding easier) and the thesis reward (not the dense one)."""
     held = (torch.as_tensor(episode_returns) >= -HORIZON / 2) & ~torch.as_tensor(terminated, dtype=torch.bool)
     fraction = float(held.double().mean())
