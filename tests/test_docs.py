@@ -60,31 +60,43 @@ def run_command(command: str) -> None:
         result = CliRunner().invoke(main, words[1:])
         assert result.exit_code == 0, f"{command}\n{result.output}"
     elif words[0] == "ray":
-        subprocess.run([Path(sys.executable).with_name("ray"), *words[1:]], check=True, capture_output=True)
+        ray(*words[1:])
     else:
         raise AssertionError(f"the docs test does not know how to run {command!r}")
+
+
+def ray(*arguments: str) -> None:
+    """Ray's command line, from this Python's environment."""
+    subprocess.run([Path(sys.executable).with_name("ray"), *arguments], check=True, capture_output=True)
 
 
 @pytest.mark.parametrize("page", PAGES, ids=[page.stem for page in PAGES])
 def test_every_block_of_the_page_runs(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "configs").symlink_to(ROOT / "configs")
-    for module in (drrl.cli, drrl.train):
-        prepare = drrl.train.prepare
-        monkeypatch.setattr(
-            module, "prepare", lambda config, *args, _prepare=prepare, **kw: _prepare(shortened(config), *args, **kw)
-        )
-    ran = 0
-    for language, title, text in blocks(page):
-        if title is not None:  # a file the page asks the reader to save
-            (tmp_path / title).write_text(text)
-        elif language == "bash":
-            for command in commands(text):
-                run_command(command)
+    prepare = drrl.train.prepare
+
+    def prepare_shortened(config, *args, **kwargs):
+        return prepare(shortened(config), *args, **kwargs)
+
+    monkeypatch.setattr(drrl.cli, "prepare", prepare_shortened)
+    monkeypatch.setattr(drrl.train, "prepare", prepare_shortened)
+    ran, started_ray = 0, False
+    try:
+        for language, title, text in blocks(page):
+            if title is not None:  # a file the page asks the reader to save
+                (tmp_path / title).write_text(text)
+            elif language == "bash":
+                for command in commands(text):
+                    started_ray |= command.startswith("ray start")
+                    run_command(command)
+                    ran += 1
+            elif language == "python":
+                exec(compile(text, f"{page.name}", "exec"), {"__name__": "__main__"})
                 ran += 1
-        elif language == "python":
-            exec(compile(text, f"{page.name}", "exec"), {"__name__": "__main__"})
-            ran += 1
+    finally:
+        if started_ray:  # a page that fails after starting a cluster leaves none running
+            ray("stop", "--force")
     assert ran, f"{page.name} has no command or Python block"
 
 
