@@ -16,7 +16,16 @@ from drrl.config import TrainConfig
 from drrl.envs.baxter.env import BaxterReachEnv, BaxterReachVectorEnv
 from drrl.envs.baxter.model import ARM, SIDES, baxter_xml, import_mujoco, load_model, neutral_pose
 from drrl.envs.baxter.simulation import BaxterBatch
-from drrl.envs.baxter.task import WORKSPACE, ReachTask, reach_fraction, reach_verdict, side_box
+from drrl.envs.baxter.task import (
+    LIMIT_MARGIN,
+    TARGET_GAIN,
+    TARGET_SPAN,
+    WORKSPACE,
+    ReachTask,
+    reach_fraction,
+    reach_verdict,
+    side_box,
+)
 
 mujoco = import_mujoco()  # headless GL unless MUJOCO_GL says otherwise
 
@@ -253,13 +262,59 @@ def test_verdict_counts_episodes_that_held_the_target_for_half_the_horizon():
 # ---------------------------------------------------------------------------------------------------- Gymnasium
 
 
-def test_check_env_passes():
-    env = gym.make("drrl/BaxterReachRight-v0")
+@pytest.mark.parametrize("env_id", ["drrl/BaxterReachRight-v0", "drrl/BaxterReachTargets-v0"])
+def test_check_env_passes(env_id):
+    env = gym.make(env_id)
     assert isinstance(env.unwrapped, BaxterReachEnv)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         warnings.filterwarnings("ignore", message=".*symmetric and normalized")  # the Box is in rad/s, by design
         check_env(env.unwrapped, skip_render_check=True)  # rendering: test_render_draws_the_robot
+
+
+# ---------------------------------------------------------------------------------------------------- controllers
+
+
+def test_joint_target_commands_follow_the_proportional_law():
+    task = ReachTask(arms=("right",), controller="joint_targets")
+    low, high = np.array([j.lower for j in ARM]), np.array([j.upper for j in ARM])
+    qpos = neutral_pose("right") + 0.1
+    np.testing.assert_allclose(task.velocities(np.zeros((1, 7)), qpos[None]), [[-TARGET_GAIN * 0.1] * 7])
+    actions = np.array([[1.0, -1.0, 0.5, 1.0, -0.2, 1.0, -1.0]])
+    wanted = np.clip(neutral_pose("right") + TARGET_SPAN * actions[0], low + LIMIT_MARGIN, high - LIMIT_MARGIN)
+    assert np.any(wanted != neutral_pose("right") + TARGET_SPAN * actions[0])  # some targets were held inside
+    np.testing.assert_allclose(task.velocities(actions, qpos[None])[0], TARGET_GAIN * (wanted - qpos))
+    velocity = ReachTask(arms=("right",))
+    np.testing.assert_array_equal(velocity.velocities(actions, qpos[None]), actions)  # the thesis's actions
+
+
+def test_a_zero_joint_target_action_holds_the_neutral_pose():
+    env = BaxterReachVectorEnv(1, arms=SIDES, controller="joint_targets")
+    assert env.single_action_space == gym.spaces.Box(-1.0, 1.0, (14,), np.float32)
+    env.reset(seed=3)
+    for _ in range(300):  # 3 s: fifteen time constants of the controller
+        _, _, terminated, _, _ = env.step(np.zeros((1, 14)))
+        assert not terminated[0]
+    np.testing.assert_allclose(env.sim.qpos[0], env.task.neutral, atol=0.01)
+
+
+@pytest.mark.parametrize("sign", [-1.0, 1.0])
+def test_joint_targets_keep_every_joint_off_its_limits(sign):
+    """Each joint of the right arm sent alone to its most extreme target settles inside its limits, never at them;
+    with velocity actions the same pushes reach the limits (test_running_into_a_joint_limit_fails_the_episode)."""
+    env = BaxterReachVectorEnv(7, arms=("right",), controller="joint_targets")
+    env.reset(seed=0)
+    actions = sign * np.eye(7)  # env i moves joint i only
+    ended = np.zeros(7, dtype=bool)
+    for _ in range(400):
+        _, _, terminated, _, _ = env.step(actions)
+        assert not env.task.at_limit(env.sim.qpos).any()
+        ended |= terminated  # the shoulder pitched far down meets the table: a contact, not a limit
+    assert ended.sum() <= 1
+    angles = env.sim.qpos[np.arange(7), np.arange(7)]
+    low, high = env.task.joint_low[:7], env.task.joint_high[:7]
+    inside = np.clip(env.task.neutral[:7] + sign * TARGET_SPAN, low + LIMIT_MARGIN, high - LIMIT_MARGIN)
+    np.testing.assert_allclose(angles[~ended], inside[~ended], atol=0.02)
 
 
 def test_make_vec_gives_the_native_batch_with_velocity_bounded_actions():

@@ -10,11 +10,12 @@
 
 Importing this package registers the environments below with Gymnasium (``gymnasium.make`` gives the single env,
 ``gymnasium.make_vec`` the native batch); it does not import MuJoCo, which happens when a Baxter env is made. Other
-task options (``reward="dense"``, ``action_noise``, ``fixed_target``, ...) are keyword arguments of ``make``.
+task options (``controller``, ``reward``, ``action_noise``, ``fixed_target``, ...) are keyword arguments of ``make``.
 """
 
 from typing import Any
 
+from drrl.envs.baxter.model import SIDES
 from drrl.envs.baxter.task import explain_reach, reach_verdict
 from drrl.envs.registry import EnvEntry, register
 
@@ -25,6 +26,13 @@ ENVIRONMENTS: dict[
     "baxter-reach-dense": ("drrl/BaxterReachDense-v0", {"arms": ("right", "left"), "reward": "dense"}, False),
     "baxter-reach-right": ("drrl/BaxterReachRight-v0", {"arms": ("right",)}, True),  # the thesis's setting
     "baxter-reach-right-random": ("drrl/BaxterReachRightRandom-v0", {"arms": ("right",), "targets": "random"}, True),
+    # both arms through the joint-target controller (``task``'s docstring says why)
+    "baxter-reach-targets": ("drrl/BaxterReachTargets-v0", {"arms": SIDES, "controller": "joint_targets"}, True),
+    "baxter-reach-dense-targets": (
+        "drrl/BaxterReachDenseTargets-v0",
+        {"arms": SIDES, "reward": "dense", "controller": "joint_targets"},
+        False,
+    ),
 }
 
 for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():

@@ -54,8 +54,10 @@ class _Randomness:
 def _spaces(task: ReachTask) -> tuple[spaces.Box, spaces.Box]:
     bound = np.finfo(np.float32).max  # the state is bounded, but loosely: keep the checker quiet
     observation = spaces.Box(-bound, bound, (task.observation_size,), np.float32)
-    action = spaces.Box(-task.max_velocity.astype(np.float32), task.max_velocity.astype(np.float32), dtype=np.float32)
-    return observation, action
+    if task.controller == "joint_targets":
+        return observation, spaces.Box(-1.0, 1.0, (task.num_joints,), np.float32)
+    velocity = task.max_velocity.astype(np.float32)
+    return observation, spaces.Box(-velocity, velocity, dtype=np.float32)
 
 
 def _check_render_mode(render_mode: str | None) -> str | None:
@@ -167,9 +169,10 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         self.elapsed_steps[ids] = 0
         self._ended[ids] = False
 
-    def _advance(self, velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _advance(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Physics and reward of one control period: (reward, terminated, truncated, largest distance), each (n,)."""
         limit = self.task.max_velocity
+        velocities = self.task.velocities(actions, self.sim.qpos)
         if self.task.action_noise:
             noise = self._random.normal(np.arange(self.num_envs), self.task.num_joints)
             velocities = velocities + self.task.action_noise * limit * noise

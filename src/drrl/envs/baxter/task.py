@@ -17,8 +17,16 @@ takes well under one; the rest is holding still. (The thesis gives no control pe
 be 40 s of mostly holding, at twice the physics cost.)
 
 Beyond the thesis: a dense reward (minus the summed end-point distances in metres, failure as above), random
-targets in a box, and varied starts (the neutral pose plus up to ±0.1 rad per joint), so that a policy must act on
-what it observes rather than replay one trajectory.
+targets in a box, varied starts (the neutral pose plus up to ±0.1 rad per joint), so that a policy must act on what
+it observes rather than replay one trajectory, and a joint-target controller in front of the joint velocities.
+
+Why the controller. With the thesis's actions (joint velocities) a linear policy has no restoring force: a
+perturbation ε of its weights is a velocity that persists, and on both arms (574 weights, 14 joints) every candidate
+of σ = 0.05 drove some joint into its limit within a second, so every candidate failed and the ranking only
+rewarded failing later. With ``controller="joint_targets"`` an action sets target angles, kept inside the limits,
+and a proportional controller turns them into the joint velocities the robot is sent, as Baxter's own position
+mode would: a perturbed policy moves the targets, not a velocity, and cannot drive a joint into its limit (contacts
+still fail the episode).
 """
 
 from __future__ import annotations
@@ -36,6 +44,10 @@ TOLERANCE = 0.05  # metres between end-point and target counted as "at the targe
 START_NOISE = 0.1  # rad: each joint starts uniformly within ± this of the neutral pose
 OFFSET_UNIT = 0.1  # metres: end-point-to-target offsets are observed in tenths of a metre
 REWARDS = ("thesis", "dense")
+CONTROLLERS = ("velocity", "joint_targets")
+TARGET_SPAN = 1.5  # rad: a joint-target action of ±1 puts the joint's target this far from the neutral pose
+LIMIT_MARGIN = 0.05  # rad: joint targets stay this far inside each joint's limits
+TARGET_GAIN = 5.0  # 1/s: the joint-target controller's velocity command per radian from the target (0.2 s to close)
 TARGET_MODES = ("fixed", "random")
 
 # Boxes in the base frame (metres) as (low corner, high corner), for the right arm; the left arm's are mirrored in y.
@@ -83,6 +95,10 @@ class ReachTask:
     mirrored for the left arm); "random" draws it per episode uniformly from ``target_box``. Both must lie in
     ``WORKSPACE``. ``action_noise``: the commanded joint velocities get Gaussian noise of this many times each
     joint's velocity limit per control step (5.2.1: "the transition function follows physical law with some noise").
+    ``controller``: "velocity", an action is each joint's angular velocity (5.2.1, the thesis's); "joint_targets", an
+    action in [−1, 1] per joint sets its target angle ``TARGET_SPAN`` · action from the neutral pose (kept
+    ``LIMIT_MARGIN`` inside its limits), and the command is the velocity ``TARGET_GAIN`` · (target − angle), within
+    the velocity limits.
     """
 
     arms: tuple[str, ...] = SIDES
@@ -94,9 +110,11 @@ class ReachTask:
     target_box: tuple[tuple[float, float, float], tuple[float, float, float]] = RANDOM_TARGETS
     start_noise: float = START_NOISE
     action_noise: float = 0.0
+    controller: str = "velocity"
     joint_low: np.ndarray = field(init=False, repr=False)
     joint_high: np.ndarray = field(init=False, repr=False)
     max_velocity: np.ndarray = field(init=False, repr=False)
+    neutral: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "arms", tuple(self.arms))
@@ -104,6 +122,7 @@ class ReachTask:
             raise ValueError(f"arms must be distinct sides among {SIDES}, got {self.arms!r}")
         _check_choice("targets", self.targets, TARGET_MODES)
         _check_choice("reward", self.reward, REWARDS)
+        _check_choice("controller", self.controller, CONTROLLERS)
         if self.horizon < 1 or self.tolerance <= 0 or self.start_noise < 0 or self.action_noise < 0:
             raise ValueError("horizon and tolerance must be positive, start_noise and action_noise non-negative")
         for side in self.arms:
@@ -113,6 +132,7 @@ class ReachTask:
         object.__setattr__(self, "joint_low", np.tile([j.lower for j in ARM], arms))
         object.__setattr__(self, "joint_high", np.tile([j.upper for j in ARM], arms))
         object.__setattr__(self, "max_velocity", np.tile([j.max_velocity for j in ARM], arms))
+        object.__setattr__(self, "neutral", np.concatenate([neutral_pose(side) for side in self.arms]))
 
     @property
     def num_joints(self) -> int:
@@ -131,8 +151,7 @@ class ReachTask:
     def starts(self, uniform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Start joint angles (n, joints) and targets (n, arms, 3) from U[0, 1) numbers, (n, random_numbers_per_start)
         of them."""
-        neutral = np.concatenate([neutral_pose(side) for side in self.arms])
-        joints = neutral + self.start_noise * (2 * uniform[:, : self.num_joints] - 1)
+        joints = self.neutral + self.start_noise * (2 * uniform[:, : self.num_joints] - 1)
         n = len(uniform)
         if self.targets == "fixed":
             targets = np.broadcast_to([mirror(self.fixed_target, side) for side in self.arms], (n, len(self.arms), 3))
@@ -156,6 +175,14 @@ class ReachTask:
         return np.concatenate(
             [qpos, qvel / self.max_velocity, targets.reshape(n, -1), offsets.reshape(n, -1)], axis=1, dtype=np.float32
         )
+
+    def velocities(self, actions: np.ndarray, qpos: np.ndarray) -> np.ndarray:
+        """The joint velocities (n, joints) that actions (n, joints) command at joint angles ``qpos``, before the
+        velocity limits: the actions themselves ("velocity"), or the joint-target controller's command."""
+        if self.controller == "velocity":
+            return actions
+        targets = self.neutral + TARGET_SPAN * actions
+        return TARGET_GAIN * (np.clip(targets, self.joint_low + LIMIT_MARGIN, self.joint_high - LIMIT_MARGIN) - qpos)
 
     def at_limit(self, qpos: np.ndarray) -> np.ndarray:
         """Whether any joint has reached its position limit, (n,)."""
