@@ -12,16 +12,23 @@ With ``observation_norm`` the search's policies act on observations normalised b
 observations before this generation (``drrl.rollout.moments``; not in the thesis). The env runs them with the
 normalisation folded into their first layer (``fold_input``), so backends, measuring
 and ``drrl eval`` see plain policies, and the best centre is kept as the env ran it.
+
+With ``env_schedule`` (a curriculum, not in the thesis) each generation's training episodes run on the env made with
+the schedule's value of its option for the budget spent so far: a function of the counters, so a resumed run
+continues it exactly. Measuring runs on the env as registered.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 
 from drrl.config import TrainConfig
+from drrl.envs.batch import RegisteredEnv
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
 from drrl.policies import Policy
-from drrl.rollout import Backend, NonFiniteOutput
+from drrl.rollout import Backend, NonFiniteOutput, Workload
 from drrl.rollout.moments import Moments
 
 
@@ -30,8 +37,8 @@ class ModelFree(World):
 
     kind, unit = "model-free", "generation"
 
-    def __init__(self, config: TrainConfig, policy: Policy, backend: Backend):
-        self.config, self.policy, self.backend = config, policy, backend
+    def __init__(self, config: TrainConfig, policy: Policy, backend: Backend, workload: Workload):
+        self.config, self.policy, self.backend, self.workload = config, policy, backend, workload
         self.moments = Moments.empty(1, policy.observation_size) if config.observation_norm else None
 
     @property
@@ -43,6 +50,7 @@ class ModelFree(World):
         return self.config.generations * self.config.episodes_per_generation
 
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
+        scheduled = self.follow_schedule(counters)
         try:
             result, metrics = run_generation(
                 setup.search, self.backend, derive_seed(self.config.seed, iteration, TRAINING), self.deployed
@@ -61,7 +69,22 @@ class ModelFree(World):
             "mean_return": float(result.returns.mean()),
             "best_return": float(result.returns.max()),
             "sigma_norm": metrics["sigma_norm"],
+            **scheduled,
         }
+
+    def follow_schedule(self, counters: Counters) -> dict[str, float]:
+        """Point the backend at the env of this generation's scheduled option, if any; the option's value."""
+        schedule = self.config.env_schedule
+        if schedule is None:
+            return {}
+        value = schedule.value(counters.real_episodes / self.real_budget)
+        env = self.workload.env
+        assert isinstance(env, RegisteredEnv)  # prepare gives a model-free run its registered env
+        scheduled = RegisteredEnv(env.env_id, env.engine, ((schedule.option, value),))
+        if self.workload.env != scheduled:
+            self.workload = dataclasses.replace(self.workload, env=scheduled)
+            self.backend.use(self.workload)
+        return {schedule.option: value}
 
     def measure_due(self, iteration: int, counters: Counters) -> bool:
         """After the last generation; else every ``eval_every`` generations if measuring now keeps the steps spent

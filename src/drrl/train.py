@@ -89,7 +89,7 @@ def resolved(config: TrainConfig, env_id: str) -> TrainConfig:
     norm = config.observation_norm
     return config.model_copy(
         update={
-            "engine": choose_engine(env_id, config.engine),
+            "engine": choose_engine(env_id, config.engine, with_options=config.env_schedule is not None),
             "observation_norm": (not is_own(env_id) and config.model_based is None) if norm is None else norm,
         }
     )
@@ -102,7 +102,9 @@ def prepare(
     here, before any work."""
     entry = lookup(config.env)
     config = resolved(config, entry.env_id)
-    probe = make_batch_env(entry.env_id, 1, config.engine)  # its spaces size the policy before anything is made
+    schedule = config.env_schedule
+    options = {} if schedule is None else {schedule.option: schedule.start}  # an option the env refuses fails here
+    probe = make_batch_env(entry.env_id, 1, config.engine, options)  # its spaces size the policy before anything
     try:
         policy = build_policy(config, probe)
         check_memory(config, policy)
@@ -127,7 +129,7 @@ def prepare(
         world = (
             ModelBased(config, entry, policy, eval_env, evaluator)
             if config.model_based
-            else ModelFree(config, policy, evaluator)
+            else ModelFree(config, policy, evaluator, workload)
         )
     except BaseException:
         evaluator.close()

@@ -13,8 +13,9 @@ another process can make it: a registered id here, a learned model in ``drrl.mod
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import gymnasium
 import numpy as np
@@ -38,13 +39,15 @@ class EnvSource(Protocol):
 
 @dataclass(frozen=True)
 class RegisteredEnv:
-    """A registered environment by its Gymnasium id (or drrl alias), batched by ``engine``."""
+    """A registered environment by its Gymnasium id (or drrl alias), batched by ``engine``, made with the keyword
+    arguments ``options`` ((name, value) pairs)."""
 
     env_id: str
     engine: str = "auto"
+    options: tuple[tuple[str, Any], ...] = ()
 
     def make(self, num_envs: int) -> VectorEnv:
-        return make_batch_env(self.env_id, num_envs, self.engine)
+        return make_batch_env(self.env_id, num_envs, self.engine, dict(self.options))
 
 
 def resolve_env_id(name: str) -> str:
@@ -52,14 +55,16 @@ def resolve_env_id(name: str) -> str:
     return lookup(name).env_id
 
 
-def choose_engine(name: str, engine: str = "auto") -> str:
-    """The engine that batches env ``name``: ``engine`` itself if it can, the first that can for ``auto``."""
+def choose_engine(name: str, engine: str = "auto", with_options: bool = False) -> str:
+    """The engine that batches env ``name``: ``engine`` itself if it can, the first that can for ``auto`` (not
+    EnvPool if the env is to be made ``with_options``: EnvPool makes its tasks as it ships them)."""
     env_id = resolve_env_id(name)
     native = is_own(env_id)
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; choose one of: {', '.join(ENGINES)}")
     if engine == "auto":
-        return "native" if native else "envpool" if pool.installed() and pool.ships(env_id) else "gymnasium"
+        pooled = not with_options and pool.installed() and pool.ships(env_id)
+        return "native" if native else "envpool" if pooled else "gymnasium"
     if engine == "native" and not native:
         raise ValueError(f"{env_id} has no native drrl batch; its engines are envpool and gymnasium")
     if engine == "envpool":
@@ -70,19 +75,29 @@ def choose_engine(name: str, engine: str = "auto") -> str:
     return engine
 
 
-def make_batch_env(name: str, num_envs: int, engine: str = "auto") -> VectorEnv:
-    """``num_envs`` copies of env ``name`` stepping together; raises before any work on unsupported spaces."""
+def make_batch_env(
+    name: str, num_envs: int, engine: str = "auto", options: Mapping[str, Any] | None = None
+) -> VectorEnv:
+    """``num_envs`` copies of env ``name`` stepping together, made with the keyword arguments ``options``; raises
+    before any work on unsupported spaces or options."""
     env_id = resolve_env_id(name)
-    engine = choose_engine(env_id, engine)
+    options = dict(options or {})
+    engine = choose_engine(env_id, engine, bool(options))
     try:
         if engine == "native":
-            env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point")
+            env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **options)
         elif engine == "envpool":
+            if options:
+                raise ValueError(f"engine envpool makes {env_id} as EnvPool ships it, without options {options}")
             env = pool.PooledEpisodes(env_id, num_envs)
         else:
-            env = SerialEpisodes(env_id, num_envs)
+            env = SerialEpisodes(env_id, num_envs, options)
     except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
         raise ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}") from None
+    except TypeError as error:  # a keyword argument the env does not take
+        if not options:
+            raise
+        raise ValueError(f"{env_id} cannot be made with options {options}: {error}") from None
     try:
         observation_size(env.single_observation_space)
         ActionMap(env.single_action_space)

@@ -6,6 +6,9 @@ stepped again (``EpisodeSlots``).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import gymnasium
 import numpy as np
 
@@ -13,13 +16,13 @@ from drrl.envs.slots import EpisodeSlots
 
 
 class SerialEpisodes(EpisodeSlots):
-    """``num_envs`` copies of ``gymnasium.make(env_id)``."""
+    """``num_envs`` copies of ``gymnasium.make(env_id, **options)``."""
 
-    def __init__(self, env_id: str, num_envs: int):
+    def __init__(self, env_id: str, num_envs: int, options: Mapping[str, Any] | None = None):
         self.envs = []
         try:
             for _ in range(num_envs):
-                self.envs.append(gymnasium.make(env_id, disable_env_checker=True))
+                self.envs.append(gymnasium.make(env_id, disable_env_checker=True, **(options or {})))
         except BaseException:
             self.close_extras()
             raise

@@ -1,0 +1,80 @@
+"""A curriculum on one env option: the schedule's values, the training env that follows it while measuring does not,
+exact resume, and clear refusals."""
+
+import math
+
+import pytest
+from click.testing import CliRunner
+from pydantic import ValidationError
+from test_loop import StopAfter, metrics
+
+from drrl.cli import main
+from drrl.config import EnvSchedule, TrainConfig
+from drrl.envs.batch import make_batch_env
+from drrl.loop import run
+from drrl.runs import RunFolder
+from drrl.train import prepare, resume, subscribers
+
+# Pendulum's gravity g (Gymnasium's default 10) from 20 down to 5 over the whole budget of 3 generations
+SCHEDULED = TrainConfig(
+    env="Pendulum-v1",
+    engine="gymnasium",
+    popsize=4,
+    budget=12,
+    max_steps=10,
+    eval_episodes=2,
+    checkpoint_every=1,
+    env_schedule={"option": "g", "start": 20.0, "end": 5.0, "share": 1.0},
+)
+
+
+def test_the_schedule_moves_geometrically_over_its_share_then_holds():
+    schedule = EnvSchedule(option="tolerance", start=0.5, end=0.05, share=0.5)
+    assert schedule.value(0.0) == 0.5
+    assert schedule.value(0.25) == pytest.approx(math.sqrt(0.5 * 0.05))
+    assert schedule.value(0.5) == pytest.approx(0.05) and schedule.value(1.0) == pytest.approx(0.05)
+
+
+def test_training_follows_the_schedule_and_measuring_sees_the_registered_env():
+    setup = prepare(SCHEDULED)
+    try:
+        counters = run(setup)
+        expected = [SCHEDULED.env_schedule.value(done / 12) for done in (0, 4, 8)]
+        assert [row["g"] for row in counters.rows] == pytest.approx(expected)
+        assert [env.unwrapped.g for env in setup.world.backend.env.envs] == pytest.approx([expected[-1]] * 4)
+        assert [env.unwrapped.g for env in setup.eval_env.envs] == [10.0, 10.0]
+    finally:
+        setup.close()
+
+
+def test_a_scheduled_run_resumes_exactly(tmp_path):
+    whole = prepare(SCHEDULED)
+    run(whole, subscribers(RunFolder.create(tmp_path / "whole"), progress=False))
+    stopped = prepare(SCHEDULED)
+    with pytest.raises(KeyboardInterrupt):
+        run(stopped, [*subscribers(RunFolder.create(tmp_path / "stopped"), progress=False), StopAfter(1)])
+    resume(tmp_path / "stopped")
+    assert metrics(tmp_path / "stopped") == metrics(tmp_path / "whole")
+    assert [float(row["g"]) for row in metrics(tmp_path / "whole")] == pytest.approx(
+        [SCHEDULED.env_schedule.value(done / 12) for done in (0, 4, 8)]
+    )
+
+
+def test_options_reach_the_env_and_an_unknown_one_is_refused_before_any_work(tmp_path):
+    env = make_batch_env("Pendulum-v1", 2, "gymnasium", {"g": 2.0})
+    assert [sub.unwrapped.g for sub in env.envs] == [2.0, 2.0]
+    env.close()
+    with pytest.raises(ValueError, match=r"Pendulum-v1 cannot be made with options \{'gravity': 2.0\}"):
+        make_batch_env("Pendulum-v1", 2, "gymnasium", {"gravity": 2.0})
+    settings = tmp_path / "settings.toml"
+    settings.write_text('env = "Pendulum-v1"\n[env_schedule]\noption = "gravity"\nstart = 20.0\nend = 5.0\n')
+    result = CliRunner().invoke(main, ["train", "--config", str(settings), "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2 and "cannot be made with options {'gravity': 20.0}" in result.output
+    assert "Traceback" not in result.output and not (tmp_path / "run").exists()
+
+
+def test_a_schedule_is_for_model_free_runs_and_moves_between_positive_values():
+    with pytest.raises(ValidationError, match="env_schedule is for model-free runs"):
+        TrainConfig(model_based={}, env_schedule={"option": "tolerance", "start": 0.5, "end": 0.05})
+    with pytest.raises(ValidationError, match="greater than 0"):
+        TrainConfig(env_schedule={"option": "tolerance", "start": 0.0, "end": 0.05})
