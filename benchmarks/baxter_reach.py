@@ -8,6 +8,7 @@ when μ first reached ``--goal`` (95 % for a fixed target) and the final fractio
 
     python benchmarks/baxter_reach.py --seeds 5
     python benchmarks/baxter_reach.py --env drrl/BaxterReachRightRandom-v0 --goal 0.8 --budget 4000
+    python benchmarks/baxter_reach.py --env drrl/BaxterReachTargets-v0 --schedule tolerance:0.5:0.05:0.5 --budget 2000
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import time
 import numpy as np
 import torch
 
-from drrl.config import TrainConfig
+from drrl.config import EnvSchedule, TrainConfig
 from drrl.envs.batch import ActionMap, make_batch_env
 from drrl.envs.baxter.task import reach_fraction
 from drrl.loop import Counters, Setup, Subscriber, run
@@ -112,6 +113,7 @@ def run_seed(args, seed: int) -> list[dict]:
         eval_every=10**6,
         checkpoint_every=args.probe_every,
         seed=seed,
+        env_schedule=schedule(args.schedule),
     )
     with tempfile.TemporaryDirectory() as folder:
         probe = ReachProbe(config, args.eval_episodes, args.verbose)
@@ -120,6 +122,14 @@ def run_seed(args, seed: int) -> list[dict]:
         finally:
             probe.env.close()
     return probe.history
+
+
+def schedule(text: str | None) -> EnvSchedule | None:
+    """``OPTION:START:END:SHARE`` (e.g. tolerance:0.5:0.05:0.5) as an env schedule."""
+    if text is None:
+        return None
+    option, start, end, share = text.split(":")
+    return EnvSchedule(option=option, start=float(start), end=float(end), share=float(share))
 
 
 def first(history: list[dict], goal: float) -> dict | None:
@@ -145,6 +155,7 @@ def main() -> None:
     parser.add_argument("--sigma-lr", type=float, default=0.05)
     parser.add_argument("--probe-every", type=int, default=5, help="generations between measurements of μ")
     parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--schedule", help="a curriculum on an env option, OPTION:START:END:SHARE of the budget")
     parser.add_argument("--goal", type=float, default=0.95, help="fraction of episodes that must end at the target")
     parser.add_argument("--verbose", action="store_true", help="print every measurement of μ")
     args = parser.parse_args()
@@ -152,7 +163,7 @@ def main() -> None:
     print(
         f"{args.env}, {args.policy} policy, popsize {args.popsize}, {args.optimizer} lr {args.center_lr}, "
         f"σ₀ {args.sigma_init}, budget {args.budget}, μ measured on {args.eval_episodes} episodes every "
-        f"{args.probe_every} generations"
+        f"{args.probe_every} generations" + (f", schedule {args.schedule}" if args.schedule else "")
     )
     print("| seed | episodes to goal | seconds to goal | final reached | final failed | final median distance (m) |")
     print("| --- | --- | --- | --- | --- | --- |")
