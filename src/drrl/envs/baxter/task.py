@@ -23,10 +23,12 @@ it observes rather than replay one trajectory, and a joint-target controller in 
 Why the controller. With the thesis's actions (joint velocities) a linear policy has no restoring force: a
 perturbation ε of its weights is a velocity that persists, and on both arms (574 weights, 14 joints) every candidate
 of σ = 0.05 drove some joint into its limit within a second, so every candidate failed and the ranking only
-rewarded failing later. With ``controller="joint_targets"`` an action sets target angles, kept inside the limits,
-and a proportional controller turns them into the joint velocities the robot is sent, as Baxter's own position
-mode would: a perturbed policy moves the targets, not a velocity, and cannot drive a joint into its limit (contacts
-still fail the episode).
+rewarded failing later. Stopping each joint just inside its limits, as the real robot's controller does, is not
+enough: the joints then drift to their stops and the arms into the table or each other (every measured centre
+failed by contact after 200 episodes). With ``controller="joint_targets"`` an action sets target angles, kept
+inside the limits, and a proportional controller turns them into the joint velocities the robot is sent, as
+Baxter's position mode would: a perturbed policy moves the targets, which the arm then holds, rather than a velocity
+that persists; no policy can drive a joint into its limit, and contacts still fail the episode.
 """
 
 from __future__ import annotations
@@ -97,8 +99,8 @@ class ReachTask:
     joint's velocity limit per control step (5.2.1: "the transition function follows physical law with some noise").
     ``controller``: "velocity", an action is each joint's angular velocity (5.2.1, the thesis's); "joint_targets", an
     action in [−1, 1] per joint sets its target angle ``TARGET_SPAN`` · action from the neutral pose (kept
-    ``LIMIT_MARGIN`` inside its limits), and the command is the velocity ``TARGET_GAIN`` · (target − angle), within
-    the velocity limits.
+    ``LIMIT_MARGIN`` inside its limits), and the command is ``TARGET_GAIN`` · (target − angle). Every command is then
+    held within the joints' velocity limits.
     """
 
     arms: tuple[str, ...] = SIDES
