@@ -16,6 +16,7 @@ from drrl.config import TrainConfig
 from drrl.envs.baxter.env import BaxterReachEnv, BaxterReachVectorEnv
 from drrl.envs.baxter.model import ARM, SIDES, baxter_xml, import_mujoco, load_model, neutral_pose
 from drrl.envs.baxter.simulation import BaxterBatch
+from drrl.envs.baxter.standin import Actuation, StandIn
 from drrl.envs.baxter.task import (
     LIMIT_MARGIN,
     TARGET_GAIN,
@@ -262,7 +263,9 @@ def test_verdict_counts_episodes_that_held_the_target_for_half_the_horizon():
 # ---------------------------------------------------------------------------------------------------- Gymnasium
 
 
-@pytest.mark.parametrize("env_id", ["drrl/BaxterReachRight-v0", "drrl/BaxterReachTargets-v0"])
+@pytest.mark.parametrize(
+    "env_id", ["drrl/BaxterReachRight-v0", "drrl/BaxterReachTargets-v0", "drrl/BaxterReachRightStandIn-v0"]
+)
 def test_check_env_passes(env_id):
     env = gym.make(env_id)
     assert isinstance(env.unwrapped, BaxterReachEnv)
@@ -502,3 +505,41 @@ def test_short_training_runs_and_counts_every_step():
     assert counters.iteration == 2 and counters.real_episodes == 8
     assert counters.real_steps == 8 * 25
     assert counters.rows[-1]["center_return"] == -25.0  # 25 steps away from the target
+
+
+# ---------------------------------------------------------------------------------------------------- stand-in
+
+
+def test_a_stand_in_robot_has_its_own_fixed_masses_and_damping_and_nominal_gravity_compensation():
+    nominal = load_model(("right",))
+    robot, again = (StandIn(seed=4).model(nominal, ("right",)) for _ in range(2))
+    links = [nominal.body(f"right_{joint.name}").id for joint in ARM]
+    scale = robot.body_mass[links] / nominal.body_mass[links]
+    assert np.all((scale >= 0.8) & (scale <= 1.2)) and np.ptp(scale) > 0.05
+    np.testing.assert_allclose(robot.body_gravcomp[links] * robot.body_mass[links], nominal.body_mass[links])
+    damping = robot.dof_damping[:7] / nominal.dof_damping[:7]
+    assert np.all((damping >= 0.8) & (damping <= 1.2)) and np.ptp(damping) > 0.05
+    np.testing.assert_array_equal(again.body_mass, robot.body_mass)  # one robot per seed
+    assert not np.array_equal(StandIn(seed=5).model(nominal, ("right",)).body_mass, robot.body_mass)
+    assert nominal.body_mass[links[0]] == ARM[0].mass  # the cached nominal model is untouched
+
+
+def test_a_stand_in_acts_a_period_late_with_a_lag_and_reads_noisy_sensors():
+    exact = StandIn(mass_error=0, damping_error=0, lag=0, angle_noise=0, velocity_noise=0)
+    late = BaxterReachVectorEnv(1, arms=("right",), stand_in=exact)
+    now = BaxterReachVectorEnv(1, arms=("right",))
+    for env in (late, now):
+        env.reset(seed=[3])
+    push = np.full((1, 7), 0.5)
+    late.step(push)
+    now.step(push)
+    assert np.abs(late.sim.qvel).max() < 0.01 < np.abs(now.sim.qvel).max()  # the command has not arrived yet
+    late.step(np.zeros((1, 7)))
+    assert np.abs(late.sim.qvel).max() > 0.1  # it arrives one period late
+    actuation = Actuation(StandIn(delay=0, lag=0.05), 1, 1, 0.01)
+    followed = [actuation(np.ones((1, 1)))[0, 0] for _ in range(5)]
+    np.testing.assert_allclose(followed, 1 - np.exp(-0.01 * np.arange(1, 6) / 0.05))  # first-order lag
+    noisy = BaxterReachVectorEnv(2, arms=("right",), stand_in={"angle_noise": 0.01})
+    observation, _ = noisy.reset(seed=[1, 2])
+    error = observation[:, :7] - noisy.sim.qpos
+    assert 0.001 < np.abs(error).max() < 0.05  # readings off by about 0.01 rad; the state itself is not

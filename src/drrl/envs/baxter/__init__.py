@@ -6,6 +6,7 @@
 | ``simulation`` | many MjData stepped one control period at a time on MuJoCo's batch thread pool |
 | ``task`` | the reach task: starts, targets, workspace, reward 5.10 and its dense variant, the verdict |
 | ``env`` | the native ``BaxterReachVectorEnv`` and the single ``BaxterReachEnv`` |
+| ``standin`` | a stand-in for the real robot: masses and damping off, delayed and lagging commands, noisy sensors |
 | ``render`` | headless MuJoCo frames of the scene |
 
 Importing this package registers the environments below with Gymnasium (``gymnasium.make`` gives the single env,
@@ -26,6 +27,8 @@ ENVIRONMENTS: dict[
     "baxter-reach-dense": ("drrl/BaxterReachDense-v0", {"arms": ("right", "left"), "reward": "dense"}, False),
     "baxter-reach-right": ("drrl/BaxterReachRight-v0", {"arms": ("right",)}, True),  # the thesis's setting
     "baxter-reach-right-random": ("drrl/BaxterReachRightRandom-v0", {"arms": ("right",), "targets": "random"}, True),
+    # the thesis's setting on a stand-in for the real robot (``standin``): physics off, delay, lag, noisy sensors
+    "baxter-reach-right-standin": ("drrl/BaxterReachRightStandIn-v0", {"arms": ("right",), "stand_in": {}}, True),
     # both arms through the joint-target controller (``task``'s docstring says why)
     "baxter-reach-targets": ("drrl/BaxterReachTargets-v0", {"arms": SIDES, "controller": "joint_targets"}, True),
     "baxter-reach-dense-targets": (

@@ -22,8 +22,9 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from drrl.envs.baxter.model import TIMESTEP
+from drrl.envs.baxter.model import TIMESTEP, load_model
 from drrl.envs.baxter.simulation import BaxterBatch
+from drrl.envs.baxter.standin import Actuation, StandIn
 from drrl.envs.baxter.task import CONTROL_PERIOD, ReachTask
 
 if TYPE_CHECKING:
@@ -71,7 +72,8 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
 
     ``reset(seed=int)`` seeds one generator for all starts, targets and noise of the batch; ``reset(seed=[s_0,
     ...])`` gives env i its own generator ``np.random.default_rng(s_i)``, so that its episodes depend only on s_i.
-    Task options (``arms``, ``targets``, ``reward``, ``action_noise``, ...) are those of ``ReachTask``.
+    Task options (``arms``, ``targets``, ``reward``, ``action_noise``, ...) are those of ``ReachTask``. ``stand_in``
+    (a ``StandIn`` or its keyword arguments) makes every robot of the batch that stand-in for the real Baxter.
     ``info["distance"]`` holds each env's largest end-point-to-target distance (m) after the step. ``width``,
     ``height`` and ``shadows`` set the rgb_array frames (shadows and reflections cost about 5× the frame time).
     """
@@ -87,13 +89,21 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         width: int = 320,
         height: int = 240,
         shadows: bool = False,
+        stand_in: StandIn | dict | None = None,
         **task_options: Any,
     ) -> None:
         self.num_envs = num_envs
         self.render_mode = _check_render_mode(render_mode)
         self._render_options: dict[str, Any] = {"width": width, "height": height, "shadows": shadows}
         self.task = task if task is not None else ReachTask(**task_options)
-        self.sim = BaxterBatch(num_envs, self.task.arms, SUBSTEPS, threads)
+        self.stand_in = StandIn(**stand_in) if isinstance(stand_in, dict) else stand_in
+        arms = self.task.arms
+        if self.stand_in is None:
+            self.sim, self._actuation = BaxterBatch(num_envs, arms, SUBSTEPS, threads), None
+        else:
+            model = self.stand_in.model(load_model(arms), arms)
+            self.sim = BaxterBatch(num_envs, arms, SUBSTEPS, threads, model)
+            self._actuation = Actuation(self.stand_in, num_envs, self.task.num_joints, CONTROL_PERIOD)
         self.single_observation_space, self.single_action_space = _spaces(self.task)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
@@ -166,6 +176,8 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
     def _start(self, ids: np.ndarray) -> None:
         joints, targets = self.task.starts(self._random.uniform(ids, self.task.random_numbers_per_start))
         self.sim.restart(ids, joints, targets)
+        if self._actuation is not None:
+            self._actuation.restart(ids)
         self.elapsed_steps[ids] = 0
         self._ended[ids] = False
 
@@ -176,7 +188,8 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         if self.task.action_noise:
             noise = self._random.normal(np.arange(self.num_envs), self.task.num_joints)
             velocities = velocities + self.task.action_noise * limit * noise
-        self.sim.step(np.clip(velocities, -limit, limit))
+        velocities = np.clip(velocities, -limit, limit)
+        self.sim.step(velocities if self._actuation is None else self._actuation(velocities))
         self.elapsed_steps += 1
         distances = self._distances()
         failed = self.sim.in_contact | self.task.at_limit(self.sim.qpos)
@@ -188,7 +201,12 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         return np.linalg.norm(self.sim.targets - self.sim.end_points, axis=2)
 
     def _observe(self) -> np.ndarray:
-        return self.task.observe(self.sim.qpos, self.sim.qvel, self.sim.targets, self.sim.end_points)
+        qpos, qvel = self.sim.qpos, self.sim.qvel
+        if self.stand_in is not None:  # what the robot's joint sensors read
+            ids, joints = np.arange(self.num_envs), self.task.num_joints
+            qpos = qpos + self.stand_in.angle_noise * self._random.normal(ids, joints)
+            qvel = qvel + self.stand_in.velocity_noise * self._random.normal(ids, joints)
+        return self.task.observe(qpos, qvel, self.sim.targets, self.sim.end_points)
 
 
 def _checked(actions, shape: tuple[int, ...]) -> np.ndarray:

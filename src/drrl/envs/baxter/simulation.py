@@ -24,16 +24,21 @@ class BaxterBatch:
     """``num_sims`` simulations of Baxter with ``moving_arms`` actuated, advanced ``substeps`` physics steps a call.
 
     ``qpos``, ``qvel`` and ``targets`` are live (num_sims, ...) views of the simulations' states; ``threads``
-    defaults to every available core (at most one per simulation).
+    defaults to every available core (at most one per simulation); ``model``, drrl's model of Baxter unless given.
     """
 
     def __init__(
-        self, num_sims: int, moving_arms: tuple[str, ...] = SIDES, substeps: int = 5, threads: int | None = None
+        self,
+        num_sims: int,
+        moving_arms: tuple[str, ...] = SIDES,
+        substeps: int = 5,
+        threads: int | None = None,
+        model=None,
     ) -> None:
         mujoco = import_mujoco()
         from mujoco.batch import Batch
 
-        self.model = load_model(tuple(moving_arms))
+        self.model = load_model(tuple(moving_arms)) if model is None else model
         self.substeps = substeps
         threads = min(threads or available_cores(), num_sims)
         self._stage = mujoco.mjtStage.mjSTAGE_POS  # kinematics and collisions at the new state
