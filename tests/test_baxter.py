@@ -466,6 +466,10 @@ def test_drrl_train_and_render_a_baxter_run_end_to_end(tmp_path):
         and "no-failure:   yes" in judged.output
         and "2/2 episodes without a failure" in judged.output
     ), judged.output
+    transferred = CliRunner().invoke(main, ["eval", str(run), "--episodes", "2", "--env", "baxter-reach-right-standin"])
+    assert transferred.exit_code == 0 and transferred.output.startswith("drrl/BaxterReachRightStandIn-v0, ")
+    elsewhere = CliRunner().invoke(main, ["eval", str(run), "--env", "baxter-reach"])
+    assert elsewhere.exit_code == 1 and "trained on drrl/BaxterReachRight-v0, whose observation" in elsewhere.output
     rendered = CliRunner().invoke(main, ["render", str(run), "--out", str(tmp_path / "reach.gif"), "--max-steps", "8"])
     if rendered.exit_code != 0 and "headless rendering failed" in rendered.output:
         pytest.skip(rendered.output)

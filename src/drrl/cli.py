@@ -7,6 +7,7 @@ import traceback
 from pathlib import Path
 
 import click
+from gymnasium.vector import VectorEnv
 from pydantic import ValidationError
 
 from drrl import __version__
@@ -257,17 +258,24 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
 @click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True)
 @click.option("--seed", type=INTEGER, default=0, show_default=True)
 @click.option("--final", is_flag=True, help="the last centre policy instead of the best measured one")
-def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
+@click.option(
+    "--env",
+    "env_name",
+    help="measure on this env instead of the run's (same spaces), e.g. baxter-reach-right-standin",
+)
+def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name: str | None) -> None:
     """Run a trained centre policy over fresh episodes and report how it does.
 
     By default the centre policy that measured best during training; its measurement chose it, so it is measured
-    again here on new episodes.
+    again here on new episodes. ``--env`` measures it on another env with the same spaces: how it transfers.
     """
     run = RunFolder(run_path)
     try:
         config, checkpoint = open_run(run)
-        entry = lookup(checkpoint["env_id"])
-        env = make_batch_env(entry.env_id, episodes, config.engine)
+        entry = lookup(env_name or checkpoint["env_id"])
+        env = make_batch_env(entry.env_id, episodes, config.engine if env_name is None else "auto")
+        if env_name is not None:
+            check_same_spaces(env, make_batch_env(checkpoint["env_id"], 1, config.engine), checkpoint["env_id"])
     except ValueError as error:
         raise click.ClickException(f"{run_path}: {error}") from None
     policy = build_policy(config, env)
@@ -289,6 +297,22 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool) -> None:
         click.echo(f"{name.replace('_', '-') + ':':14}{'yes' if ok else 'no'}")
     if entry.explain is not None:
         click.echo(entry.explain(result.episode_returns, result.terminated))
+
+
+def check_same_spaces(env: VectorEnv, trained_on: VectorEnv, trained_id: str) -> None:
+    """Refuse to measure a policy on ``env`` unless its spaces are those of the env it was trained on."""
+    same = (env.single_observation_space, env.single_action_space) == (
+        trained_on.single_observation_space,
+        trained_on.single_action_space,
+    )
+    trained_on.close()
+    if not same:
+        env.close()
+        raise ValueError(
+            f"the policy was trained on {trained_id}, whose observation and action spaces "
+            f"({trained_on.single_observation_space}, {trained_on.single_action_space}) are not this env's "
+            f"({env.single_observation_space}, {env.single_action_space})"
+        )
 
 
 @main.command("render")
