@@ -78,3 +78,29 @@ def test_a_schedule_is_for_model_free_runs_and_moves_between_positive_values():
         TrainConfig(model_based={}, env_schedule={"option": "tolerance", "start": 0.5, "end": 0.05})
     with pytest.raises(ValidationError, match="greater than 0"):
         TrainConfig(env_schedule={"option": "tolerance", "start": 0.0, "end": 0.05})
+
+
+def test_an_adaptive_schedule_steps_only_after_generations_that_earned_it():
+    schedule = EnvSchedule(option="g", start=20.0, end=5.0, advance_at=-1e9, steps=4)
+    assert schedule.value(0.9, stage=2) == pytest.approx(20.0 * (5.0 / 20.0) ** 0.5)  # the budget does not count
+    assert schedule.value(0.0, stage=9) == pytest.approx(5.0)
+    for advance_at, stages in ((-1e9, (0, 1, 2)), (1e9, (0, 0, 0))):  # every generation earns a step / none does
+        adaptive = {"option": "g", "start": 20.0, "end": 5.0, "advance_at": advance_at, "steps": 4}
+        setup = prepare(SCHEDULED.model_copy(update={"env_schedule": EnvSchedule(**adaptive)}))
+        try:
+            rows = run(setup).rows
+        finally:
+            setup.close()
+        assert [row["g"] for row in rows] == pytest.approx([20.0 * 0.25 ** (stage / 4) for stage in stages])
+
+
+def test_an_adaptive_schedule_resumes_exactly(tmp_path):
+    config = SCHEDULED.model_copy(
+        update={"env_schedule": EnvSchedule(option="g", start=20.0, end=5.0, advance_at=-1e9, steps=4)}
+    )
+    run(prepare(config), subscribers(RunFolder.create(tmp_path / "whole"), progress=False))
+    with pytest.raises(KeyboardInterrupt):
+        run(prepare(config), [*subscribers(RunFolder.create(tmp_path / "stopped"), progress=False), StopAfter(2)])
+    assert RunFolder(tmp_path / "stopped").load_checkpoint()["world"]["schedule_stage"] == 2
+    resume(tmp_path / "stopped")
+    assert metrics(tmp_path / "stopped") == metrics(tmp_path / "whole")

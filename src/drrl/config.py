@@ -40,8 +40,12 @@ CHOICES = {
 
 class EnvSchedule(BaseModel):
     """A curriculum (beyond the thesis): one numeric keyword argument of the env, ``option``, moved geometrically from
-    ``start`` to ``end`` over the first ``share`` of the real-episode budget, then held at ``end``. It shapes the
-    training episodes only: measuring, ``drrl eval`` and ``drrl render`` see the env as registered.
+    ``start`` to ``end``, then held there. It shapes the training episodes only: measuring, ``drrl eval`` and ``drrl
+    render`` see the env as registered.
+
+    It moves over the first ``share`` of the real-episode budget, or, with ``advance_at`` set, by one of ``steps``
+    equal geometric steps after each generation whose median candidate returned at least ``advance_at``: as fast as
+    the search keeps up, where a schedule by the budget can outrun it and leave every return tied.
 
     Why: a sparse reward gives a search nothing to rank. On Baxter's two-arm reach (reward 5.10) no candidate of a
     fresh policy brings both end-points within 0.05 m of their targets, so every return is −2000; a tolerance that
@@ -54,10 +58,14 @@ class EnvSchedule(BaseModel):
     start: float = Field(gt=0, le=1e9)
     end: float = Field(gt=0, le=1e9)
     share: float = Field(0.5, gt=0, le=1, description="of the real-episode budget over which the option moves")
+    advance_at: float | None = Field(None, description="move a step after a generation whose median return is this")
+    steps: int = Field(10, ge=1, le=10_000, description="steps from start to end, with advance_at")
 
-    def value(self, progress: float) -> float:
-        """The option's value once ``progress`` (0 to 1) of the budget is spent."""
-        return self.start * (self.end / self.start) ** min(progress / self.share, 1.0)
+    def value(self, progress: float, stage: int = 0) -> float:
+        """The option's value once ``progress`` (0 to 1) of the budget is spent, or, with ``advance_at``, once
+        ``stage`` steps are taken."""
+        fraction = stage / self.steps if self.advance_at is not None else progress / self.share
+        return self.start * (self.end / self.start) ** min(fraction, 1.0)
 
 
 class TrainConfig(BaseModel):

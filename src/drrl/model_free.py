@@ -14,8 +14,8 @@ normalisation folded into their first layer (``fold_input``), so backends, measu
 and ``drrl eval`` see plain policies, and the best centre is kept as the env ran it.
 
 With ``env_schedule`` (a curriculum, not in the thesis) each generation's training episodes run on the env made with
-the schedule's value of its option for the budget spent so far: a function of the counters, so a resumed run
-continues it exactly. Measuring runs on the env as registered.
+the schedule's value of its option for the budget spent so far, or for the steps its generations have earned (kept
+in the checkpoint), so a resumed run continues it exactly. Measuring runs on the env as registered.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ class ModelFree(World):
     def __init__(self, config: TrainConfig, policy: Policy, backend: Backend, workload: Workload):
         self.config, self.policy, self.backend, self.workload = config, policy, backend, workload
         self.moments = Moments.empty(1, policy.observation_size) if config.observation_norm else None
+        self.stage = 0  # steps an adaptive env_schedule has taken
 
     @property
     def iterations(self) -> int:
@@ -59,6 +60,9 @@ class ModelFree(World):
             raise NonFiniteOutput(f"generation {iteration}: {error}; stopped before updating the search") from None
         if self.moments is not None and result.moments is not None:
             self.moments = self.moments.plus(result.moments)
+        schedule = self.config.env_schedule
+        if schedule is not None and schedule.advance_at is not None:
+            self.stage += int(self.stage < schedule.steps and float(result.returns.median()) >= schedule.advance_at)
         counters.generations += 1
         counters.real_episodes += result.episodes
         counters.real_steps += result.steps
@@ -77,7 +81,7 @@ class ModelFree(World):
         schedule = self.config.env_schedule
         if schedule is None:
             return {}
-        value = schedule.value(counters.real_episodes / self.real_budget)
+        value = schedule.value(counters.real_episodes / self.real_budget, self.stage)
         env = self.workload.env
         assert isinstance(env, RegisteredEnv)  # prepare gives a model-free run its registered env
         scheduled = RegisteredEnv(env.env_id, env.engine, ((schedule.option, value),))
@@ -110,11 +114,13 @@ class ModelFree(World):
         return self.policy.fold_input(params, *self.moments.mean_std())
 
     def state_dict(self) -> dict:
-        return {} if self.moments is None else {"observation_moments": self.moments.state_dict()}
+        state: dict = {} if self.moments is None else {"observation_moments": self.moments.state_dict()}
+        return state | ({"schedule_stage": self.stage} if self.config.env_schedule is not None else {})
 
     def load_state_dict(self, state: dict) -> None:
         if self.moments is not None:
             self.moments = Moments.from_state_dict(state["observation_moments"])
+        self.stage = int(state.get("schedule_stage", 0))
 
     def checkpoint_due(self, iteration: int) -> bool:
         return iteration % self.config.checkpoint_every == 0

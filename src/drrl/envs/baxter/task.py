@@ -25,10 +25,11 @@ perturbation ε of its weights is a velocity that persists, and on both arms (57
 of σ = 0.05 drove some joint into its limit within a second, so every candidate failed and the ranking only
 rewarded failing later. Stopping each joint just inside its limits, as the real robot's controller does, is not
 enough: the joints then drift to their stops and the arms into the table or each other (in a trial the centre
-failed by contact in every episode after 200 real episodes, and reached nothing in 400). With ``controller="joint_targets"`` an action sets target angles, kept
-inside the limits, and a proportional controller turns them into the joint velocities the robot is sent, as
-Baxter's position mode would: a perturbed policy moves the targets, which the arm then holds, rather than a velocity
-that persists; no policy can drive a joint into its limit, and contacts still fail the episode.
+failed by contact in every episode after 200 real episodes, and reached nothing in 400). With
+``controller="joint_targets"`` an action sets target angles, kept inside the limits, and a proportional controller
+turns them into the joint velocities the robot is sent, as Baxter's position mode would: a perturbed policy moves
+the targets, which the arm then holds, rather than a velocity that persists; no policy can drive a joint into its
+limit, and contacts still fail the episode.
 """
 
 from __future__ import annotations
