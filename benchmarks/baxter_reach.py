@@ -8,7 +8,8 @@ when μ first reached ``--goal`` (95 % for a fixed target) and the final fractio
 
     python benchmarks/baxter_reach.py --seeds 5
     python benchmarks/baxter_reach.py --env drrl/BaxterReachRightRandom-v0 --goal 0.8 --budget 4000
-    python benchmarks/baxter_reach.py --env drrl/BaxterReachTargets-v0 --schedule tolerance:0.5:0.05:0.5 --budget 2000
+    python benchmarks/baxter_reach.py --env drrl/BaxterReachTargets-v0 --center-lr 0.1 \
+        --schedule tolerance:0.5:0.05:1 --advance-at -1000 --budget 1500
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ def run_seed(args, seed: int) -> list[dict]:
         eval_every=10**6,
         checkpoint_every=args.probe_every,
         seed=seed,
-        env_schedule=schedule(args.schedule),
+        env_schedule=schedule(args.schedule, args.advance_at, args.steps),
     )
     with tempfile.TemporaryDirectory() as folder:
         probe = ReachProbe(config, args.eval_episodes, args.verbose)
@@ -124,12 +125,14 @@ def run_seed(args, seed: int) -> list[dict]:
     return probe.history
 
 
-def schedule(text: str | None) -> EnvSchedule | None:
-    """``OPTION:START:END:SHARE`` (e.g. tolerance:0.5:0.05:0.5) as an env schedule."""
+def schedule(text: str | None, advance_at: float | None, steps: int) -> EnvSchedule | None:
+    """``OPTION:START:END:SHARE`` (e.g. tolerance:0.5:0.05:0.5) as an env schedule; by its steps if ``advance_at``."""
     if text is None:
         return None
     option, start, end, share = text.split(":")
-    return EnvSchedule(option=option, start=float(start), end=float(end), share=float(share))
+    return EnvSchedule(
+        option=option, start=float(start), end=float(end), share=float(share), advance_at=advance_at, steps=steps
+    )
 
 
 def first(history: list[dict], goal: float) -> dict | None:
@@ -156,6 +159,8 @@ def main() -> None:
     parser.add_argument("--probe-every", type=int, default=5, help="generations between measurements of μ")
     parser.add_argument("--eval-episodes", type=int, default=50)
     parser.add_argument("--schedule", help="a curriculum on an env option, OPTION:START:END:SHARE of the budget")
+    parser.add_argument("--advance-at", type=float, help="the schedule steps when the median return reaches this")
+    parser.add_argument("--steps", type=int, default=10, help="the schedule's steps, with --advance-at")
     parser.add_argument("--goal", type=float, default=0.95, help="fraction of episodes that must end at the target")
     parser.add_argument("--verbose", action="store_true", help="print every measurement of μ")
     args = parser.parse_args()
@@ -163,7 +168,8 @@ def main() -> None:
     print(
         f"{args.env}, {args.policy} policy, popsize {args.popsize}, {args.optimizer} lr {args.center_lr}, "
         f"σ₀ {args.sigma_init}, budget {args.budget}, μ measured on {args.eval_episodes} episodes every "
-        f"{args.probe_every} generations" + (f", schedule {args.schedule}" if args.schedule else "")
+        f"{args.probe_every} generations"
+        + (f", schedule {schedule(args.schedule, args.advance_at, args.steps)}" if args.schedule else "")
     )
     print("| seed | episodes to goal | seconds to goal | final reached | final failed | final median distance (m) |")
     print("| --- | --- | --- | --- | --- | --- |")
