@@ -8,6 +8,7 @@ simulator; its best measured centre then runs ``--episodes`` fresh episodes on t
 the end, nothing failed) and the fraction failed, per seed and robot, then medians.
 
     python benchmarks/transfer_gap.py --seeds 3 --robots 3
+    python benchmarks/transfer_gap.py --seeds 3 --first-seed 2 --robots 0 --ablate 1   # one difference at a time
 """
 
 from __future__ import annotations
@@ -38,19 +39,33 @@ def measure(policy, center: torch.Tensor, options: dict, episodes: int) -> tuple
     return reach_fraction(torch.as_tensor(distance), torch.as_tensor(failed)), float(np.mean(failed))
 
 
+NONE = {"mass_error": 0.0, "damping_error": 0.0, "delay": 0, "lag": 0.0, "angle_noise": 0.0, "velocity_noise": 0.0}
+ONE_AT_A_TIME = {  # each of the stand-in's differences alone, at its default size
+    "masses and damping": {"mass_error": 0.2, "damping_error": 0.2},
+    "delay": {"delay": 1},
+    "lag": {"lag": 0.05},
+    "sensor noise": {"angle_noise": 0.005, "velocity_noise": 0.05},
+}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--robots", type=int, default=3, help="stand-ins, robot seeds 0, 1, ...")
     parser.add_argument("--budget", type=int, default=400)
     parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--ablate", type=int, help="also robot ABLATE with one of its differences at a time")
     args = parser.parse_args()
     torch.set_num_threads(1)
     robots = {"nominal": {}} | {f"stand-in {r}": {"stand_in": {"seed": r}} for r in range(args.robots)}
+    if args.ablate is not None:
+        for name, difference in ONE_AT_A_TIME.items():
+            robots[f"{name} only"] = {"stand_in": NONE | difference | {"seed": args.ablate}}
     print("| seed | " + " | ".join(f"{name}: reached / failed" for name in robots) + " |")
     print("| --- |" + " --- |" * len(robots))
     results: dict[str, list[float]] = {name: [] for name in robots}
-    for seed in range(args.seeds):
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
         config = TrainConfig(
             env="baxter-reach-right",
             popsize=20,
