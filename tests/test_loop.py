@@ -172,8 +172,10 @@ def test_tensorboard_logs_every_metric_against_real_episodes(tmp_path):
 LAYER_RULES = {  # a module (or package) -> drrl modules it must not import, directly or lazily
     "models": ("drrl.envs", "drrl.search", "drrl.rollout", "drrl.loop", "drrl.train"),
     "model_based.py": ("drrl.model_free", "drrl.train", "drrl.cli"),
-    "model_free.py": ("drrl.model_based", "drrl.train", "drrl.cli"),
-    "loop.py": ("drrl.model_free", "drrl.model_based", "drrl.train", "drrl.cli", "drrl.runs"),
+    "model_free.py": ("drrl.model_based", "drrl.action_space", "drrl.train", "drrl.cli"),
+    "action_space.py": ("drrl.model_based", "drrl.train", "drrl.cli"),
+    "policy_gradient": ("drrl.models", "drrl.loop", "drrl.config", "drrl.train", "drrl.model_free", "drrl.envs"),
+    "loop.py": ("drrl.model_free", "drrl.model_based", "drrl.action_space", "drrl.train", "drrl.cli", "drrl.runs"),
     "search": ("drrl.envs", "drrl.models", "drrl.rollout", "drrl.policies"),
     "envs": ("drrl.models", "drrl.search", "drrl.rollout", "drrl.policies", "drrl.loop"),
     "rollout": ("drrl.models", "drrl.search", "drrl.loop", "drrl.train"),

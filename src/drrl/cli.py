@@ -19,6 +19,7 @@ from drrl.envs.registry import aliases, lookup
 from drrl.loop import Counters, Setup, derive_seed, measure, run
 from drrl.model_based import ModelDiverged
 from drrl.policies import ACCEPTED_FORMS
+from drrl.policy_gradient import POLICY_GRADIENTS
 from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.runs import RunFolder
 from drrl.search import SEARCHES
@@ -69,14 +70,19 @@ def main(ctx: click.Context, debug: bool) -> None:
     '(pip install "drrl[envpool]"), or Gymnasium\'s envs in turn',
 )
 @setting("policy", str, ACCEPTED_FORMS)
-@setting("search", click.Choice(SEARCHES), "search: PGPE (the thesis), or CMA-ES with a full or diagonal covariance")
+@setting(
+    "search",
+    click.Choice((*SEARCHES, *POLICY_GRADIENTS)),
+    "search: PGPE (the thesis), CMA-ES with a full or diagonal covariance, or an action-space policy gradient "
+    "(REINFORCE with a baseline, eNAC)",
+)
 @setting("sampler", click.Choice(SAMPLERS), "PGPE sampler")
 @setting("optimizer", click.Choice(OPTIMIZERS), "step rule for μ")
 @setting("fitness_shaping", click.Choice(FITNESS_SHAPINGS), "fitness shaping")
 @setting("popsize", INTEGER, "candidates per generation")
 @setting("episodes_per_candidate", INTEGER, "real episodes per candidate")
 @setting("budget", INTEGER, "real training episodes to spend")
-@setting("sigma_init", float, "initial σ of every parameter")
+@setting("sigma_init", float, "initial σ of every parameter (reinforce, enac: of every action)")
 @setting("center_lr", float, "step size of μ")
 @setting("sigma_lr", float, "learning rate of σ")
 @setting("eval_episodes", INTEGER, "episodes measuring the centre policy")

@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationIn
 from drrl.envs.batch import ENGINES
 from drrl.envs.registry import is_own
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings, one_of
+from drrl.policy_gradient import POLICY_GRADIENTS
 from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
 
@@ -29,8 +30,15 @@ GYMNASIUM_DEFAULTS = {
     "fitness_shaping": "centered_ranks",
     "budget": 3200,
 }
+# Action-space policy gradients' defaults, chosen on the thesis cart-pole among 12 settings each (step rule and size,
+# initial action σ, episodes an update; 3 seeds, 2000–3000 episodes): the ones that reached a near-optimal centre in
+# the most seeds (BENCHMARKS.md). eNAC's regression needs more episodes an update than REINFORCE's gradient.
+POLICY_GRADIENT_DEFAULTS = {
+    "reinforce": {"optimizer": "adam", "center_lr": 0.1, "sigma_init": 1.0, "popsize": 16},
+    "enac": {"optimizer": "clipup", "center_lr": 0.05, "sigma_init": 0.5, "popsize": 32},
+}
 CHOICES = {
-    "search": SEARCHES,
+    "search": (*SEARCHES, *POLICY_GRADIENTS),
     "sampler": SAMPLERS,
     "optimizer": OPTIMIZERS,
     "fitness_shaping": FITNESS_SHAPINGS,
@@ -78,9 +86,13 @@ class TrainConfig(BaseModel):
 
     ``model_based`` set makes a model-based run; the fields it leaves unset then start from
     ``MODEL_BASED_DEFAULTS`` instead of the model-free defaults. A model-free run on an
-    env that is not drrl's own starts from ``GYMNASIUM_DEFAULTS`` instead. Both merge in one place. sampler,
+    env that is not drrl's own starts from ``GYMNASIUM_DEFAULTS`` instead, an action-space policy gradient's from
+    ``POLICY_GRADIENT_DEFAULTS``. All merge in one place. sampler,
     optimizer, center_lr, sigma_lr, fitness_shaping, baseline_decay and max_sigma_change are
-    PGPE's; CMA-ES (``search = "cmaes"`` or ``"sep-cmaes"``) uses popsize, sigma_init and seed only.
+    PGPE's; CMA-ES (``search = "cmaes"`` or ``"sep-cmaes"``) uses popsize, sigma_init and seed only. The
+    action-space policy gradients (``search = "reinforce"`` or ``"enac"``, ``drrl.action_space``) run popsize ×
+    episodes_per_candidate episodes an update, start their actions' σ at sigma_init and step θ by optimizer with
+    center_lr.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -152,6 +164,9 @@ class TrainConfig(BaseModel):
             return data
         if data.get("model_based") is not None:
             return {**MODEL_BASED_DEFAULTS, **data}
+        search = data.get("search")
+        if isinstance(search, str) and search in POLICY_GRADIENT_DEFAULTS:
+            return {**POLICY_GRADIENT_DEFAULTS[search], **data}
         env = data.get("env", "cartpole")
         if isinstance(env, str) and not is_own(env):
             return {**GYMNASIUM_DEFAULTS, **data}
@@ -164,6 +179,14 @@ class TrainConfig(BaseModel):
             raise ValueError(f"symmetric sampling needs an even popsize (pairs μ ± ε), got {self.popsize}")
         if pgpe and self.sampler == "supersymmetric" and self.popsize % 4:
             raise ValueError(f"supersymmetric sampling needs a popsize divisible by 4, got {self.popsize}")
+        if self.search in POLICY_GRADIENTS:
+            for name, given in (
+                ("model_based", self.model_based),
+                ("env_schedule", self.env_schedule),
+                ("observation_norm", self.observation_norm or None),
+            ):
+                if given is not None:
+                    raise ValueError(f"{name} is for parameter searches (pgpe, cmaes); search {self.search} has none")
         if self.model_based is not None and self.observation_norm:
             raise ValueError(
                 "observation_norm is for model-free runs; a model-based run's model normalises its own inputs"

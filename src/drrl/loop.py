@@ -24,6 +24,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -86,11 +87,27 @@ class Counters:
     wall_time: float = 0.0  # seconds since the run started, not counting the time it spent stopped
 
 
+class Learner(Protocol):
+    """What the loop needs of whatever improves the policy: a ``Search`` over parameters (PGPE, CMA-ES) or an
+    action-space ``PolicyGradient``; a world knows which it steps."""
+
+    generation: int  # updates so far
+
+    @property
+    def center(self) -> torch.Tensor:
+        """The policy's weights the loop measures and keeps, (n,): a copy."""
+
+    def state_dict(self) -> dict: ...
+
+    def load_state_dict(self, state: dict) -> None: ...
+
+
 class World(ABC):
     """Where the search's returns come from, and what one step of the loop does."""
 
-    kind: str  # "model-free" or "model-based", as checkpoints name it
+    kind: str  # "model-free", "model-based" or "action-space", as checkpoints name it
     unit: str  # what a step is called in metrics.csv and messages: "generation" or "iteration"
+    training: str = "candidates, mean (one episode each)"  # what a row's mean_return averages, for the plots
 
     @property
     @abstractmethod
@@ -139,7 +156,7 @@ class Setup:
     config: TrainConfig
     entry: EnvEntry  # what drrl knows of the env: its id, verdict, closed-form reward
     policy: Policy
-    search: Search
+    search: Learner
     world: World
     eval_env: VectorEnv  # measures the centre policy, always here
 

@@ -57,6 +57,7 @@ class ModelBased(World):
     """
 
     kind, unit = "model-based", "iteration"
+    training = "real episodes collected, mean"
 
     def __init__(self, config: TrainConfig, entry: EnvEntry, policy: Policy, eval_env: VectorEnv, backend: Backend):
         settings = config.model_based
@@ -99,6 +100,7 @@ class ModelBased(World):
     def iterate(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         """Collect, fit, search in the model (module docstring); the iteration's metrics row."""
         config, search = self.config, setup.search
+        assert isinstance(search, Search)
         # 1. real episodes: the centre and explorers (only explorers before the model has informed μ)
         params = exploring_policies(search, self.sizes[iteration - 1], with_center=iteration > 1)
         episodes, real = collect(

@@ -30,6 +30,7 @@ from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generat
 from drrl.policies import Policy
 from drrl.rollout import Backend, NonFiniteOutput, Workload
 from drrl.rollout.moments import Moments
+from drrl.search.base import Search
 
 
 class ModelFree(World):
@@ -52,9 +53,11 @@ class ModelFree(World):
 
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         scheduled = self.follow_schedule(counters)
+        search = setup.search
+        assert isinstance(search, Search)
         try:
             result, metrics = run_generation(
-                setup.search, self.backend, derive_seed(self.config.seed, iteration, TRAINING), self.deployed
+                search, self.backend, derive_seed(self.config.seed, iteration, TRAINING), self.deployed
             )
         except NonFiniteOutput as error:
             raise NonFiniteOutput(f"generation {iteration}: {error}; stopped before updating the search") from None

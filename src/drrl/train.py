@@ -12,17 +12,21 @@ import os
 from pathlib import Path
 
 import torch
+from gymnasium import spaces
 
+from drrl.action_space import ActionSpace
 from drrl.config import TrainConfig
 from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, make_batch_env, observation_size
 from drrl.envs.registry import is_own, lookup
-from drrl.loop import Counters, Setup, Subscriber, check_checkpoint, restore, run
+from drrl.loop import Counters, Learner, Setup, Subscriber, World, check_checkpoint, restore, run
 from drrl.model_based import ModelBased
 from drrl.model_free import ModelFree
 from drrl.policies import Policy, make_policy
+from drrl.policy_gradient import POLICY_GRADIENTS, make_policy_gradient
 from drrl.rollout import Workload, make_backend
+from drrl.rollout.local import LocalBackend
 from drrl.runs import RunFolder
-from drrl.search import Search, make_search
+from drrl.search import make_search
 from drrl.subscribers import ModelGuard, ProgressBar, RunFolderWriter, TensorBoardLogger
 
 
@@ -32,9 +36,21 @@ def build_policy(config: TrainConfig, env) -> Policy:
     )
 
 
-def build_search(config: TrainConfig, policy: Policy) -> Search:
+def build_search(config: TrainConfig, policy: Policy, discrete: bool) -> Learner:
+    """The search over the policy's parameters, or the action-space policy gradient, that ``config`` names."""
     generator = torch.Generator().manual_seed(config.seed)
     center = policy.initial_center(generator).to(config.device)
+    if config.search in POLICY_GRADIENTS:
+        return make_policy_gradient(
+            config.search,
+            policy,
+            center,
+            discrete=discrete,
+            sigma_init=config.sigma_init,
+            lr=config.center_lr,
+            optimizer=config.optimizer,
+            seed=config.seed,
+        )
     pgpe = (
         {}
         if config.search != "pgpe"
@@ -85,12 +101,14 @@ def check_memory(config: TrainConfig, policy: Policy) -> None:
 
 def resolved(config: TrainConfig, env_id: str) -> TrainConfig:
     """``config`` with the settings left to drrl decided for ``env_id``: the engine, and observation normalisation
-    (on for envs that are not drrl's own, whose observations can be of any scale; off for model-based runs)."""
+    (on for envs that are not drrl's own, whose observations can be of any scale; off for model-based runs and
+    action-space policy gradients)."""
     norm = config.observation_norm
+    searching = config.model_based is None and config.search not in POLICY_GRADIENTS
     return config.model_copy(
         update={
             "engine": choose_engine(env_id, config.engine, with_options=config.env_schedule is not None),
-            "observation_norm": (not is_own(env_id) and config.model_based is None) if norm is None else norm,
+            "observation_norm": (not is_own(env_id) and searching) if norm is None else norm,
         }
     )
 
@@ -101,18 +119,21 @@ def prepare(
     """Build envs, policy, search, world and backend; bad names, settings or unsupported spaces raise ValueError
     here, before any work."""
     entry = lookup(config.env)
+    if config.search in POLICY_GRADIENTS and backend != "local":
+        raise ValueError(f"search {config.search} runs its episodes here; use the local backend (--backend local)")
     config = resolved(config, entry.env_id)
     schedule = config.env_schedule
     options = {} if schedule is None else {schedule.option: schedule.start}  # an option the env refuses fails here
     probe = make_batch_env(entry.env_id, 1, config.engine, options)  # its spaces size the policy before anything
     try:
         policy = build_policy(config, probe)
+        discrete = isinstance(probe.single_action_space, spaces.Discrete)
         check_memory(config, policy)
     finally:
         probe.close()
     eval_env = make_batch_env(entry.env_id, config.eval_episodes, config.engine)
     try:
-        search = build_search(config, policy)
+        search = build_search(config, policy, discrete)
         workload = Workload(
             policy,
             RegisteredEnv(entry.env_id, config.engine),
@@ -126,11 +147,12 @@ def prepare(
         eval_env.close()
         raise
     try:
-        world = (
-            ModelBased(config, entry, policy, eval_env, evaluator)
-            if config.model_based
-            else ModelFree(config, policy, evaluator, workload)
-        )
+        if config.model_based:
+            world: World = ModelBased(config, entry, policy, eval_env, evaluator)
+        elif isinstance(evaluator, LocalBackend) and config.search in POLICY_GRADIENTS:
+            world = ActionSpace(config, policy, evaluator, workload)
+        else:
+            world = ModelFree(config, policy, evaluator, workload)
     except BaseException:
         evaluator.close()
         eval_env.close()
@@ -164,11 +186,18 @@ def prepare_resume(
     return setup, counters
 
 
+def world_kind(config: TrainConfig) -> str:
+    """The kind of world a run of ``config`` steps, as its checkpoint names it."""
+    if config.model_based:
+        return ModelBased.kind
+    return ActionSpace.kind if config.search in POLICY_GRADIENTS else ModelFree.kind
+
+
 def open_run(folder: RunFolder) -> tuple[TrainConfig, dict]:
     """A run folder's config and checkpoint for eval and render, each checked: the checkpoint trained with exactly
     this config, of its kind, with every counter and centre well formed."""
     config, checkpoint = folder.load_run()
-    check_checkpoint(checkpoint, "model-based" if config.model_based else "model-free")
+    check_checkpoint(checkpoint, world_kind(config))
     return config, checkpoint
 
 

@@ -1,0 +1,53 @@
+"""Model-free training by action-space policy gradients (thesis 2.1.4, 2.2.2): the methods PGPE is set against.
+
+One step of the loop (``drrl.loop.run``) is one update: run the stochastic policy around θ for ``popsize`` ×
+``episodes_per_candidate`` real episodes at once, every action drawn (``drrl.policy_gradient.episodes``), then step θ
+and the actions' σ along the method's gradient (REINFORCE with a baseline, or eNAC). Everything else is the
+model-free run's (``ModelFree``): real steps and episodes counted exactly by ``drrl.rollout.evaluate``, θ measured
+on separate episodes within ``eval_share`` of the steps, the best centre kept, checkpoints every
+``checkpoint_every`` updates, and an exact resume (the action noise comes from the method's generator, in its state;
+episode starts from the run seed and the update).
+
+The episodes run in this process, on the local backend's env: each step's observations, actions and rewards are
+needed here, not only the returns a backend sends back.
+"""
+
+from __future__ import annotations
+
+from drrl.config import TrainConfig
+from drrl.loop import TRAINING, Counters, Setup, derive_seed
+from drrl.model_free import ModelFree
+from drrl.policies import Policy
+from drrl.policy_gradient import PolicyGradient, collect
+from drrl.rollout import Workload
+from drrl.rollout.local import LocalBackend
+
+
+class ActionSpace(ModelFree):
+    """Every update from real episodes that explore by action, stepped here on ``backend``'s env."""
+
+    kind, unit = "action-space", "generation"
+    training = "exploring episodes, mean (actions drawn around μ)"
+
+    def __init__(self, config: TrainConfig, policy: Policy, backend: LocalBackend, workload: Workload):
+        super().__init__(config, policy, backend, workload)
+        self.env = backend.env
+
+    def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
+        method = setup.search
+        assert isinstance(method, PolicyGradient)
+        seed = derive_seed(self.config.seed, iteration, TRAINING)
+        episodes = collect(method.explorer(), method.center, self.env, seed, self.config.max_steps)
+        method.improve(episodes)
+        result = episodes.evaluation
+        counters.generations += 1
+        counters.real_episodes += result.episodes
+        counters.real_steps += result.steps
+        return {
+            "generation": iteration,
+            "real_episodes": counters.real_episodes,
+            "real_steps": counters.real_steps,
+            "mean_return": float(result.returns.mean()),
+            "best_return": float(result.episode_returns.max()),
+            "sigma_norm": float(method.spread.norm()),
+        }
