@@ -1,5 +1,6 @@
 import csv
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -7,7 +8,7 @@ from click.testing import CliRunner
 from pydantic import ValidationError
 
 from drrl.cli import main
-from drrl.compare import MODEL_BASED, compare, method_config
+from drrl.compare import DEFAULT_METHODS, MODEL_BASED, PPO, compare, method_config
 from drrl.config import TrainConfig
 from drrl.envs.registry import lookup
 from drrl.loop import better_center, run
@@ -293,7 +294,7 @@ def test_compare_writes_one_png_and_one_csv_with_every_method(tmp_path):
             "--seeds",
             "2",
             "--budget",
-            "16",
+            "32",
             "--model-based-budget",
             "2",
             "--config",
@@ -307,11 +308,29 @@ def test_compare_writes_one_png_and_one_csv_with_every_method(tmp_path):
     with (tmp_path / "cmp" / "compare.csv").open() as handle:
         rows = list(csv.DictReader(handle))
     methods = {row["method"] for row in rows}
-    assert methods == {"REINFORCE-PGPE", "SyS-PGPE", "super-symmetric PGPE", "model-based PGPE"}
+    assert methods == set(DEFAULT_METHODS)
     assert all(row["seeds"] == "2" for row in rows)
     assert all(float(row["se_low"]) <= float(row["mean_return"]) <= float(row["se_high"]) for row in rows)
     assert max(int(row["real_episodes"]) for row in rows if row["method"] == MODEL_BASED) == 2
-    assert max(int(row["real_episodes"]) for row in rows if row["method"] == "SyS-PGPE") == 16
+    assert max(int(row["real_episodes"]) for row in rows if row["method"] == "SyS-PGPE") == 32
+    assert max(int(row["real_episodes"]) for row in rows if row["method"] == "eNAC") == 32  # 32 episodes an update
+
+
+def test_compare_runs_stable_baselines3_s_ppo_on_the_same_counting(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "cmp"
+    result = CliRunner().invoke(main, ["compare", "--seeds", "1", "--budget", "3", "--method", PPO, "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    with (out / "compare.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [(row["method"], row["real_episodes"]) for row in rows] == [(PPO, "3")]  # measured when its budget ends
+
+
+def test_compare_without_stable_baselines3_says_what_to_install(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)  # as if not installed
+    result = CliRunner().invoke(main, ["compare", "--method", PPO, "--out", str(tmp_path / "cmp")])
+    assert result.exit_code == 2 and 'pip install "drrl[sb3]"' in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "cmp").exists()
 
 
 def test_compare_averages_seeds_on_a_common_grid_of_real_episodes(tmp_path, monkeypatch):
@@ -332,6 +351,8 @@ def test_compare_configs_keep_shared_settings_and_set_each_method():
     model_based = method_config(MODEL_BASED, 1, 10, settings)
     assert model_based.model_based.hidden == (8,) and model_based.budget == 10 and model_based.policy == "linear"
     assert isinstance(method_config("SyS-PGPE", 1, 60, settings), TrainConfig)
+    enac = method_config("eNAC", 1, 64, settings)  # the task's policy, the method's own search settings
+    assert (enac.search, enac.policy, enac.popsize, enac.optimizer) == ("enac", "linear", 32, "clipup")
 
 
 def test_model_based_runs_on_a_discrete_action_space_with_one_hot_actions(one_thread):

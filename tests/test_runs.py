@@ -86,10 +86,33 @@ def overlapping(labels) -> bool:
     return any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
 
 
-@pytest.mark.parametrize("model_based", [False, True])
-def test_the_learning_curve_reads_cleanly(model_based):
+def assert_reads_cleanly(figure, whole_x: bool = True):
+    """What a reader needs of a figure: its title, axis labels and legend inside the canvas, no two tick labels
+    overlapping, and (``whole_x``) x ticks at whole numbers only, as episodes and steps are counted."""
+    figure.canvas.draw()
+    canvas = figure.bbox
+    for axes in figure.axes:
+        legend = axes.get_legend()
+        for text in (axes.title, axes.xaxis.label, axes.yaxis.label, *([legend] if legend else [])):
+            box = text.get_window_extent()
+            assert canvas.contains(*box.p0) and canvas.contains(*box.p1), f"{text} is cut off"
+        shown = shown_ticks(axes)
+        assert shown and not overlapping(shown) and not overlapping(axes.get_yticklabels())
+        if whole_x:
+            assert all(float(label.get_position()[0]).is_integer() for label in shown), [t.get_text() for t in shown]
+
+
+def shown_ticks(axes) -> list:
+    """The x tick labels drawn inside the axes' limits."""
+    low, high = axes.get_xlim()
+    return [label for label in axes.get_xticklabels() if label.get_text() and low <= label.get_position()[0] <= high]
+
+
+@pytest.mark.parametrize("kind", ["model-free", "model-based", "action-space"])
+def test_the_learning_curve_reads_cleanly(kind):
     from drrl.runs import learning_curve
 
+    model_based = kind == "model-based"
     rows = [
         {
             "iteration" if model_based else "generation": k,
@@ -101,33 +124,37 @@ def test_the_learning_curve_reads_cleanly(model_based):
         for k in range(1, 4)
     ]
     title = "drrl/CartPole-v0, linear:nobias policy, model-based pgpe (rnn 64, K = 1), a title long enough to wrap"
-    figure = learning_curve(rows, title, best_step=3, eval_episodes=50)
-    figure.canvas.draw()
+    training = "exploring episodes, mean" if kind == "action-space" else None
+    figure = learning_curve(rows, title, best_step=3, eval_episodes=50, training=training)
+    assert_reads_cleanly(figure)
     axes = figure.axes[0]
-    canvas = figure.bbox
-    assert canvas.contains(*axes.title.get_window_extent().p0) and canvas.contains(*axes.title.get_window_extent().p1)
-    ticks = [tick for tick in axes.get_xticks() if axes.get_xlim()[0] <= tick <= axes.get_xlim()[1]]
-    assert ticks and all(float(tick).is_integer() for tick in ticks)  # episodes are whole
-    assert not overlapping(axes.get_xticklabels()) and not overlapping(axes.get_yticklabels())
     labels = [text.get_text() for text in axes.get_legend().get_texts()]
     assert labels[0] == "centre policy μ (mean of 50 measuring episodes)"
     assert any("best measured centre" in label and "what drrl eval runs" in label for label in labels)
     assert ("centre μ inside the world model" in labels) == model_based
+    assert ("exploring episodes, mean" in labels) == (kind == "action-space")
     assert len(axes.lines[-2].get_xdata()) == 3  # the training episodes at every step, measured or not
 
 
 def test_the_comparison_figure_reads_cleanly():
     import numpy as np
 
-    from drrl.compare import Curve, comparison_figure
+    from drrl.compare import METHODS, Curve, comparison_figure
 
     episodes = np.array([2, 3, 4, 6, 8, 16, 40, 100, 300])
-    curve = Curve("SyS-PGPE", episodes, -300.0 + episodes, -310.0 + episodes, -290.0 + episodes, 3)
-    figure = comparison_figure([curve], "cartpole", 50)
-    figure.canvas.draw()
+    curves = [Curve(name, episodes, -300.0 + episodes, -310.0 + episodes, -290.0 + episodes, 3) for name in METHODS]
+    figure = comparison_figure(curves, "cartpole", 50)
+    assert_reads_cleanly(figure)
     axes = figure.axes[0]
-    low, high = axes.get_xlim()
-    labels = [label for label in axes.get_xticklabels() if label.get_text() and low <= label.get_position()[0] <= high]
-    assert [label.get_text() for label in labels] == ["2", "5", "10", "20", "50", "100", "200"]
-    assert not overlapping(labels) and not overlapping(axes.get_yticklabels())
-    assert figure.bbox.contains(*axes.title.get_window_extent().p1)
+    assert [label.get_text() for label in shown_ticks(axes)] == ["2", "5", "10", "20", "50", "100", "200"]
+    assert [text.get_text() for text in axes.get_legend().get_texts()] == [f"{name} (3 seeds)" for name in METHODS]
+    assert len(axes.collections) == len(METHODS)  # a shaded standard-error band per method
+
+
+def test_the_k_step_error_figure_reads_cleanly():
+    import numpy as np
+
+    from drrl.models.quality import k_step_figure
+
+    figure = k_step_figure({"m = 0": np.geomspace(0.1, 30, 20), "overshooting": np.geomspace(0.1, 3, 20)}, "errors")
+    assert_reads_cleanly(figure)

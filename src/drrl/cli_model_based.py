@@ -12,8 +12,8 @@ import click
 from pydantic import ValidationError
 
 from drrl.cli_params import INTEGER
-from drrl.compare import METHODS, compare
-from drrl.config import TrainConfig, describe_errors, load_config_file
+from drrl.compare import DEFAULT_METHODS, METHODS, MODEL_BASED, PPO, compare, method_config
+from drrl.config import describe_errors, load_config_file
 from drrl.models.recurrent import MODEL_KINDS
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
@@ -105,7 +105,7 @@ def with_model_based(settings: dict, model_based: bool, model_options: dict) -> 
     type=click.IntRange(min=1),
     default=300,
     show_default=True,
-    help="real training episodes of each model-free run",
+    help="real training episodes of each model-free run (PGPE, REINFORCE, eNAC, PPO)",
 )
 @click.option(
     "--model-based-budget",
@@ -119,7 +119,7 @@ def with_model_based(settings: dict, model_based: bool, model_options: dict) -> 
     "methods",
     type=click.Choice(METHODS),
     multiple=True,
-    help="methods to run (repeat the option)  [default: all four]",
+    help="methods to run (repeat the option)  [default: all but PPO, which needs the sb3 extra]",
 )
 @click.option(
     "--config",
@@ -135,16 +135,19 @@ def with_model_based(settings: dict, model_based: bool, model_options: dict) -> 
     help="folder for compare.png and compare.csv",
 )
 def compare_command(env, seeds, budget, model_based_budget, methods, config_file, out) -> None:
-    """Figure 5.2 extended: the centre's average return against real training episodes for REINFORCE, SyS,
-    super-symmetric and model-based PGPE, mean and ±1 s.e. band over seeds, as one PNG and one CSV."""
+    """Figure 5.2 extended: the centre's average return against real training episodes for REINFORCE-, SyS-,
+    super-symmetric and model-based PGPE and the action-space REINFORCE and eNAC (and PPO, if asked), mean and
+    ±1 s.e. band over seeds, as one PNG and one CSV."""
     try:
         settings = load_config_file(config_file) if config_file else {}
     except ValueError as error:
         raise click.UsageError(str(error)) from None
     settings["env"] = env
+    methods = methods or DEFAULT_METHODS
     try:  # every method's config is checked before any run starts
-        TrainConfig.model_validate({**settings, "model_based": None, "budget": budget})
-        ModelBasedSettings.model_validate(settings.get("model_based") or {})
+        for method in methods:
+            if method != PPO:
+                method_config(method, 0, model_based_budget if method == MODEL_BASED else budget, settings)
     except ValidationError as error:
         raise click.UsageError("invalid configuration:\n" + describe_errors(error)) from None
     start = time.perf_counter()
@@ -156,7 +159,7 @@ def compare_command(env, seeds, budget, model_based_budget, methods, config_file
         )
 
     try:
-        compare(out, seeds, budget, model_based_budget, settings, methods or METHODS, progress)
+        compare(out, seeds, budget, model_based_budget, settings, methods, progress)
     except ValueError as error:
         raise click.UsageError(str(error)) from None
     click.echo(f"wrote {out / 'compare.png'} and {out / 'compare.csv'}")

@@ -1,12 +1,16 @@
-"""``drrl compare``: the thesis's Figure 5.2 reproduced and extended with model-based PGPE.
+"""``drrl compare``: the thesis's Figure 5.2 reproduced, extended with model-based PGPE and set against the
+action-space policy gradients the thesis argues against.
 
-For each method (REINFORCE-PGPE 2.28–2.29, SyS-PGPE 2.31–2.33, super-symmetric PGPE, model-based PGPE) and each of
-N seeds, a run on the same task records the centre policy's average return over ``eval_episodes`` fresh real
-episodes against the real training episodes spent so far. Each run's curve is held constant between its
-measurements (the centre policy does not change there), read on a common grid of real episodes, and summarised
-by the mean over seeds and a confidence band of one standard error of that mean on either side (about 68 %; none
-for a single seed). One standard error rather than 95 %: with the few seeds of a quick comparison a 95 % band
-needs Student's t quantiles (4.3 for 3 seeds), and a plain ±1 s.e. band reads the same at any N.
+The methods: PGPE with its three samplers (REINFORCE-PGPE 2.28–2.29, SyS-PGPE 2.31–2.33, super-symmetric PGPE),
+model-based PGPE (2.3), REINFORCE with a baseline and eNAC in action space (2.2.2, 2.1.4; ``drrl.action_space``),
+and, as an outside reference, Stable-Baselines3's PPO (``drrl.reference_ppo``, extra ``drrl[sb3]``). For each
+method and each of N seeds, a run on the same task records the centre policy's average return over
+``eval_episodes`` fresh real episodes against the real training episodes spent so far. Each run's curve is held
+constant between its measurements (the centre policy does not change there), read on a common grid of real
+episodes, and summarised by the mean over seeds and a confidence band of one standard error of that mean on either
+side (about 68 %; none for a single seed). One standard error rather than 95 %: with the few seeds of a quick
+comparison a 95 % band needs Student's t quantiles (4.3 for 3 seeds), and a plain ±1 s.e. band reads the same at
+any N.
 
 Departure from Figure 5.2: the thesis plots one run per method and a linear axis; here the axis of real episodes
 is logarithmic, because model-based PGPE spends tens of real episodes where the model-free methods spend
@@ -26,7 +30,12 @@ from drrl.train import train
 
 MODEL_FREE = {"REINFORCE-PGPE": "reinforce", "SyS-PGPE": "symmetric", "super-symmetric PGPE": "supersymmetric"}
 MODEL_BASED = "model-based PGPE"
-METHODS = (*MODEL_FREE, MODEL_BASED)
+ACTION_SPACE = {"REINFORCE": "reinforce", "eNAC": "enac"}
+PPO = "PPO (SB3)"
+METHODS = (*MODEL_FREE, MODEL_BASED, *ACTION_SPACE, PPO)
+DEFAULT_METHODS = METHODS[:-1]  # PPO needs an extra
+# The settings of the task rather than of a method: every method takes them from the shared settings.
+TASK_SETTINGS = ("env", "policy", "max_steps", "eval_episodes", "engine", "device")
 
 
 @dataclass(frozen=True)
@@ -47,12 +56,18 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
     Model-free methods keep ``settings``' policy and search and measure their centre after every generation
     (``eval_share`` 1, unless ``settings`` say otherwise), for curves as fine as the model-based ones; REINFORCE needs
     no pairs and super-symmetric PGPE needs a popsize divisible by 4, so their popsize is rounded up to 8 where
-    smaller.
+    smaller. The action-space methods take the task's settings (``TASK_SETTINGS``) and their own defaults
+    (``POLICY_GRADIENT_DEFAULTS``): PGPE's settings mean nothing to them.
     """
     base = {key: value for key, value in settings.items() if key != "model_based"}
     if method == MODEL_BASED:
         return TrainConfig.model_validate(
             {**base, "budget": budget, "seed": seed, "model_based": settings.get("model_based") or {}}
+        )
+    if method in ACTION_SPACE:
+        task = {key: value for key, value in base.items() if key in TASK_SETTINGS}
+        return TrainConfig.model_validate(
+            {"eval_share": 1.0, **task, "search": ACTION_SPACE[method], "budget": budget, "seed": seed}
         )
     merged = {"eval_share": 1.0, **base, "sampler": MODEL_FREE[method], "budget": budget, "seed": seed}
     if merged["sampler"] == "supersymmetric" and merged.get("popsize", 8) % 4:
@@ -62,9 +77,17 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
 
 def run_method(method: str, seed: int, budget: int, settings: dict) -> list[tuple[int, float]]:
     """(real training episodes, centre's measured return) after each measurement of one run."""
-    rows = train(method_config(method, seed, budget, settings)).rows
-    rows = [row for row in rows if row["center_return"] == row["center_return"]]
+    rows = [row for row in method_rows(method, seed, budget, settings) if row["center_return"] == row["center_return"]]
     return [(int(row["real_episodes"]), float(row["center_return"])) for row in rows]
+
+
+def method_rows(method: str, seed: int, budget: int, settings: dict) -> list[dict]:
+    """One run's metrics rows (PPO's: a row per measurement, in the same columns)."""
+    if method == PPO:
+        from drrl.reference_ppo import run_ppo
+
+        return run_ppo(settings.get("env", "cartpole"), seed, budget, settings.get("eval_episodes", 50))
+    return train(method_config(method, seed, budget, settings)).rows
 
 
 def summarise(method: str, runs: list[list[tuple[int, float]]], grid: np.ndarray) -> Curve:
@@ -89,11 +112,15 @@ def compare(
     budget: int = 300,
     model_based_budget: int = 20,
     settings: dict | None = None,
-    methods: tuple[str, ...] = METHODS,
+    methods: tuple[str, ...] = DEFAULT_METHODS,
     progress=None,
 ) -> list[Curve]:
     """Run every method for ``seeds`` seeds; write ``out``/compare.csv and ``out``/compare.png."""
     settings = settings or {}
+    if PPO in methods:
+        from drrl.reference_ppo import require_sb3
+
+        require_sb3()
     curves = []
     for method in methods:
         method_budget = model_based_budget if method == MODEL_BASED else budget
@@ -152,7 +179,7 @@ def comparison_figure(curves: list[Curve], env: str, eval_episodes: int):
     axes.xaxis.set_minor_formatter(NullFormatter())
     axes.set_xlabel("real training episodes")
     axes.set_ylabel(f"centre policy's average return ({eval_episodes} episodes)")
-    axes.set_title(f"{env}: PGPE variants, mean ± 1 s.e. over seeds (thesis Figure 5.2, extended)", fontsize=9)
+    axes.set_title(f"{env}: mean ± 1 s.e. over seeds (thesis Figure 5.2, extended)", fontsize=9)
     axes.legend(fontsize=8)
     axes.grid(alpha=0.3, which="both")
     return figure

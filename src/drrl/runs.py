@@ -171,11 +171,13 @@ class RunFolder:
             )
         return config, checkpoint
 
-    def plot_learning_curve(self, title: str, best_step: int | None = None, eval_episodes: int | None = None) -> Path:
+    def plot_learning_curve(
+        self, title: str, best_step: int | None = None, eval_episodes: int | None = None, training: str | None = None
+    ) -> Path:
         """learning_curve.png: ``learning_curve`` of this run's metrics."""
         import matplotlib.pyplot as plt
 
-        figure = learning_curve(self.read_metrics(), title, best_step, eval_episodes)
+        figure = learning_curve(self.read_metrics(), title, best_step, eval_episodes, training)
         out = self.path / CURVE
         figure.savefig(out, dpi=120)
         plt.close(figure)
@@ -183,11 +185,15 @@ class RunFolder:
 
 
 def learning_curve(
-    rows: list[dict[str, float]], title: str, best_step: int | None = None, eval_episodes: int | None = None
+    rows: list[dict[str, float]],
+    title: str,
+    best_step: int | None = None,
+    eval_episodes: int | None = None,
+    training: str | None = None,
 ):
     """The centre policy's return against real training episodes, as the thesis's Figure 5.2: the measured centre
-    (its ``best_step``, the one ``drrl eval`` runs, marked), the training episodes' mean return, and for a
-    model-based run the centre's return inside the model. A matplotlib figure."""
+    (its ``best_step``, the one ``drrl eval`` runs, marked), the training episodes' mean return (``training`` says
+    what that averages), and for a model-based run the centre's return inside the model. A matplotlib figure."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -217,7 +223,7 @@ def learning_curve(
         [r["real_episodes"] for r in rows],
         [r["mean_return"] for r in rows],
         alpha=0.5,
-        label="real episodes collected, mean" if model_based else "candidates, mean (one episode each)",
+        label=training or ("real episodes collected, mean" if model_based else "candidates, mean (one episode each)"),
     )
     best = [r for r in measured if best_step is not None and int(r[step]) == best_step]
     if best:

@@ -48,7 +48,10 @@ class RunFolderWriter(Subscriber):
             self.folder.save_checkpoint(snapshot)
             if counters.iteration:
                 self.folder.plot_learning_curve(
-                    setup.world.title(setup), counters.best_iteration or None, setup.config.eval_episodes
+                    setup.world.title(setup),
+                    counters.best_iteration or None,
+                    setup.config.eval_episodes,
+                    setup.world.training,
                 )
         finally:
             self.folder.release()

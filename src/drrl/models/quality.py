@@ -76,21 +76,31 @@ def model_quality_report(
 
 
 def plot_k_step_errors(curves: dict[str, np.ndarray], path: Path, title: str) -> Path:
+    """``k_step_figure`` written to ``path``."""
+    import matplotlib.pyplot as plt
+
+    figure = k_step_figure(curves, title)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+    return path
+
+
+def k_step_figure(curves: dict[str, np.ndarray], title: str):
+    """Each variant's median k-step error against k (whole steps). A matplotlib figure."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
-    figure, axes = plt.subplots(figsize=(6.4, 4.0))
+    figure, axes = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
     for label, errors in curves.items():
         axes.plot(np.arange(1, len(errors) + 1), errors, marker=".", label=label)
     axes.set_yscale("log")
+    axes.xaxis.set_major_locator(MaxNLocator(integer=True))
     axes.set_xlabel("prediction horizon k (steps)")
     axes.set_ylabel("median error (units of per-step change)")
     axes.set_title(title, fontsize=9)
     axes.legend(fontsize=8)
     axes.grid(alpha=0.3, which="both")
-    figure.tight_layout()
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
-    return path
+    return figure
