@@ -4,13 +4,16 @@ PPO as an outside reference, the same measuring for all (``drrl.compare.method_r
 
     python benchmarks/methods.py --env cartpole --seeds 10 --budget 3000 --workers 2
     python benchmarks/methods.py --env cartpole-po --policy rnn:4 --seeds 10 --budget 3000 --workers 2
-    python benchmarks/methods.py --env baxter-reach-right --seeds 10 --budget 800 --workers 2 \\
-        --pgpe '{"popsize": 20, "sigma_init": 0.05, "center_lr": 0.15, "sigma_lr": 0.05}'
+    python benchmarks/methods.py --env baxter-reach-right --seeds 5 --budget 800 --eval-episodes 10 --eval-every 2 \\
+        --pgpe '{"popsize": 20, "fitness_shaping": "centered_ranks", "sigma_init": 0.05, "sigma_lr": 0.05, \\
+                 "center_lr": 0.15}' \\
+        --action '{"optimizer": "adam", "center_lr": 0.001, "sigma_init": 0.3}'
 
 PGPE (SyS) runs with drrl's defaults, or the task's suggested settings (``EnvEntry.suggested``), or ``--pgpe``;
-REINFORCE and eNAC with their own defaults (``POLICY_GRADIENT_DEFAULTS``), every method with ``--policy`` (PPO
-with its own networks). A seed that never met a criterion counts as worse than any that did. Prints a Markdown
-table and writes every run's rows to ``--out`` as JSON.
+REINFORCE and eNAC with their own defaults (``POLICY_GRADIENT_DEFAULTS``) or ``--action``, every method with
+``--policy`` (PPO with its own networks). The centre is measured on ``--eval-episodes`` episodes after every
+``--eval-every`` updates (PPO: after every update). A seed that never met a criterion counts as worse than any
+that did. Prints a Markdown table; every run's rows go to ``--out`` as one JSON line as soon as it ends.
 """
 
 from __future__ import annotations
@@ -25,15 +28,21 @@ from pathlib import Path
 
 import torch
 
-from drrl.compare import method_rows
+from drrl.compare import ACTION_SPACE, method_config, method_rows
+from drrl.config import TrainConfig
 from drrl.envs.registry import lookup
+from drrl.train import train
 
 
-def run(job: tuple[str, int, int, dict]) -> dict:
-    method, seed, budget, settings = job
+def run(job: tuple[str, int, int, dict, dict]) -> dict:
+    method, seed, budget, settings, own = job
     torch.set_num_threads(1)
     start = time.perf_counter()
-    rows = method_rows(method, seed, budget, settings)
+    if own:  # the method's own settings over compare's
+        config = method_config(method, seed, budget, settings)
+        rows = train(TrainConfig.model_validate({**config.model_dump(), **own})).rows
+    else:
+        rows = method_rows(method, seed, budget, settings)
     measured = [row for row in rows if row["center_return"] == row["center_return"]]
     return {"method": method, "seed": seed, "wall": time.perf_counter() - start, "rows": measured}
 
@@ -54,27 +63,38 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--budget", type=int, default=3000)
     parser.add_argument("--pgpe", default="{}", help="PGPE's settings as JSON (default: the task's suggested)")
+    parser.add_argument("--action", default="{}", help="REINFORCE's and eNAC's settings as JSON (default: theirs)")
+    parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--eval-every", type=int, default=1)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=Path("methods.json"))
+    parser.add_argument("--out", type=Path, default=Path("methods.jsonl"))
     args = parser.parse_args()
     entry = lookup(args.env)
-    task = {"env": args.env, **({"policy": args.policy} if args.policy else {})}
+    task = {"env": args.env, "eval_episodes": args.eval_episodes, "eval_every": args.eval_every}
+    if args.policy:
+        task["policy"] = args.policy
     pgpe = {**entry.suggested, **json.loads(args.pgpe), **task}
     pgpe.pop("budget", None)
+    action = json.loads(args.action)
     methods = args.methods.split(",")
-    jobs = [(m, s, args.budget, pgpe if "PGPE" in m else task) for m in methods for s in range(args.seeds)]
+    jobs = [
+        (m, s, args.budget, pgpe if "PGPE" in m else task, action if m in ACTION_SPACE else {})
+        for m in methods
+        for s in range(args.seeds)
+    ]
     start = time.perf_counter()
-    with ProcessPoolExecutor(args.workers) as pool:
+    with ProcessPoolExecutor(args.workers) as pool, args.out.open("w") as out:
         results = []
         for result in pool.map(run, jobs):
             results.append(result)
+            out.write(json.dumps(result) + "\n")
+            out.flush()
             last = result["rows"][-1]
             print(
                 f"{result['method']} seed {result['seed']}: {last['real_episodes']} episodes, centre "
                 f"{last['center_return']:.1f}, {result['wall']:.0f} s",
                 flush=True,
             )
-    args.out.write_text(json.dumps(results))
     criteria = entry.criteria()
     print(f"\n{entry.env_id}, budget {args.budget}, seeds 0–{args.seeds - 1}, {time.perf_counter() - start:.0f} s wall")
     header = [f"median episodes to {c}" for c in criteria] + [f"seeds {c}" for c in criteria]

@@ -35,7 +35,7 @@ PPO = "PPO (SB3)"
 METHODS = (*MODEL_FREE, MODEL_BASED, *ACTION_SPACE, PPO)
 DEFAULT_METHODS = METHODS[:-1]  # PPO needs an extra
 # The settings of the task rather than of a method: every method takes them from the shared settings.
-TASK_SETTINGS = ("env", "policy", "max_steps", "eval_episodes", "engine", "device")
+TASK_SETTINGS = ("env", "policy", "max_steps", "eval_episodes", "eval_every", "eval_share", "engine", "device")
 
 
 @dataclass(frozen=True)

@@ -10,11 +10,9 @@ its return,
 over the batch; J, the intercept, is the average return (the baseline b of 2.7). Centring ψ and R over the
 batch gives w without J: w = argmin ‖(Ψ − ψ̄) w − (R − R̄)‖², the minimum-norm solution when the batch holds fewer
 episodes than the policy has parameters (a large network; the estimate is then poor, as eNAC's always is there).
-θ then steps along w (2.12, with the configured step rule). Each episode's ψ_e comes from one backward pass, every
-episode running on its own copy of θ.
-
-Departure from Peters and Schaal: their critic also carries a constant per start state; here J is one
-constant, as all episodes start from the same distribution.
+θ then steps along w by the configured step rule (2.12 with "sgd"; ClipUp by default, whose normalised step makes the
+step size independent of the returns' scale). Each episode's ψ_e comes from one backward pass, every episode
+running on its own copy of θ.
 """
 
 from __future__ import annotations

@@ -46,7 +46,6 @@ class Exploring(Policy):
     def __init__(self, policy: Policy, log_std: torch.Tensor, discrete: bool, generator: torch.Generator):
         super().__init__(policy.observation_size, policy.action_size, policy.shapes)
         self.policy, self.std, self.discrete, self.generator = policy, log_std.detach().exp(), discrete, generator
-        self.input_bias = policy.input_bias
         self.seen: list[torch.Tensor] = []
         self.taken: list[torch.Tensor] = []
 
