@@ -92,8 +92,8 @@ def assert_reads_cleanly(figure, whole_x: bool = True):
     figure.canvas.draw()
     canvas = figure.bbox
     for axes in figure.axes:
-        legend = axes.get_legend()
-        for text in (axes.title, axes.xaxis.label, axes.yaxis.label, *([legend] if legend else [])):
+        legends = [*figure.legends, *([axes.get_legend()] if axes.get_legend() else [])]
+        for text in (axes.title, axes.xaxis.label, axes.yaxis.label, *legends):
             box = text.get_window_extent()
             assert canvas.contains(*box.p0) and canvas.contains(*box.p1), f"{text} is cut off"
         shown = shown_ticks(axes)
@@ -147,7 +147,9 @@ def test_the_comparison_figure_reads_cleanly():
     assert_reads_cleanly(figure)
     axes = figure.axes[0]
     assert [label.get_text() for label in shown_ticks(axes)] == ["2", "5", "10", "20", "50", "100", "200"]
-    assert [text.get_text() for text in axes.get_legend().get_texts()] == [f"{name} (3 seeds)" for name in METHODS]
+    (legend,) = figure.legends
+    assert [text.get_text() for text in legend.get_texts()] == [f"{name} (3 seeds)" for name in METHODS]
+    assert legend.get_window_extent().y1 < axes.get_window_extent().y0  # below the axes, hiding no curve
     assert len(axes.collections) == len(METHODS)  # a shaded standard-error band per method
 
 

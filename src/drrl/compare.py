@@ -164,7 +164,7 @@ def comparison_figure(curves: list[Curve], env: str, eval_episodes: int):
     import matplotlib.pyplot as plt
     from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
-    figure, axes = plt.subplots(figsize=(7.0, 4.4), layout="constrained")
+    figure, axes = plt.subplots(figsize=(7.0, 4.8), layout="constrained")
     for curve in curves:
         (line,) = axes.step(
             curve.real_episodes,
@@ -180,6 +180,6 @@ def comparison_figure(curves: list[Curve], env: str, eval_episodes: int):
     axes.set_xlabel("real training episodes")
     axes.set_ylabel(f"centre policy's average return ({eval_episodes} episodes)")
     axes.set_title(f"{env}: mean ± 1 s.e. over seeds (thesis Figure 5.2, extended)", fontsize=9)
-    axes.legend(fontsize=8)
+    figure.legend(loc="outside lower center", ncols=3, fontsize=8)  # below the axes: no curve hidden behind it
     axes.grid(alpha=0.3, which="both")
     return figure

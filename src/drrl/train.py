@@ -2,8 +2,10 @@
 
 ``config.model_based`` unset: model-free training (``ModelFree``), every generation on the
 real environment. Set: model-based training (``ModelBased``), generations inside a world
-model fitted to real episodes. Both run through the same loop, backends, checkpoints and subscribers, and both
-resume from their checkpoint to exactly the metrics of an uninterrupted run.
+model fitted to real episodes. ``config.search`` an action-space policy gradient ("reinforce", "enac"): model-free
+updates from episodes that explore by action (``ActionSpace``). All run through the same loop, checkpoints and
+subscribers (the action-space ones on the local backend), and all resume from their checkpoint to exactly the
+metrics of an uninterrupted run.
 """
 
 from __future__ import annotations
