@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from drrl.config import TrainConfig
 from drrl.loop import TRAINING, Counters, Setup, derive_seed
-from drrl.model_free import ModelFree
+from drrl.model_free import ModelFree, counted
 from drrl.policies import Policy
 from drrl.policy_gradient import PolicyGradient, collect
 from drrl.rollout import Workload
@@ -40,14 +40,7 @@ class ActionSpace(ModelFree):
         episodes = collect(method.explorer(), method.center, self.env, seed, self.config.max_steps)
         method.improve(episodes)
         result = episodes.evaluation
-        counters.generations += 1
-        counters.real_episodes += result.episodes
-        counters.real_steps += result.steps
-        return {
-            "generation": iteration,
-            "real_episodes": counters.real_episodes,
-            "real_steps": counters.real_steps,
-            "mean_return": float(result.returns.mean()),
-            "best_return": float(result.episode_returns.max()),
+        return counted(counters, iteration, result) | {
+            "best_return": float(result.episode_returns.max()),  # the best episode: all ran the same θ
             "sigma_norm": float(method.spread.norm()),
         }

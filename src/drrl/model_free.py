@@ -28,7 +28,7 @@ from drrl.config import TrainConfig
 from drrl.envs.batch import RegisteredEnv
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
 from drrl.policies import Policy
-from drrl.rollout import Backend, NonFiniteOutput, Workload
+from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload
 from drrl.rollout.moments import Moments
 from drrl.search.base import Search
 
@@ -66,18 +66,7 @@ class ModelFree(World):
         schedule = self.config.env_schedule
         if schedule is not None and schedule.advance_at is not None:
             self.stage += int(self.stage < schedule.steps and float(result.returns.median()) >= schedule.advance_at)
-        counters.generations += 1
-        counters.real_episodes += result.episodes
-        counters.real_steps += result.steps
-        return {
-            "generation": iteration,
-            "real_episodes": counters.real_episodes,
-            "real_steps": counters.real_steps,
-            "mean_return": float(result.returns.mean()),
-            "best_return": float(result.returns.max()),
-            "sigma_norm": metrics["sigma_norm"],
-            **scheduled,
-        }
+        return counted(counters, iteration, result) | {"sigma_norm": metrics["sigma_norm"], **scheduled}
 
     def follow_schedule(self, counters: Counters) -> dict[str, float]:
         """Point the backend at the env of this generation's scheduled option, if any; the option's value."""
@@ -130,3 +119,17 @@ class ModelFree(World):
 
     def close(self) -> None:
         self.backend.close()
+
+
+def counted(counters: Counters, iteration: int, result: Evaluation) -> dict:
+    """Count a generation's real episodes and steps in ``counters``; the start of its metrics row."""
+    counters.generations += 1
+    counters.real_episodes += result.episodes
+    counters.real_steps += result.steps
+    return {
+        "generation": iteration,
+        "real_episodes": counters.real_episodes,
+        "real_steps": counters.real_steps,
+        "mean_return": float(result.returns.mean()),
+        "best_return": float(result.returns.max()),
+    }

@@ -70,6 +70,8 @@ class PolicyGradient(ABC):
 
     def improve(self, episodes: Episodes) -> dict[str, float]:
         """One step of 2.12 along ``ascent``; the update's metrics."""
+        if episodes.alive.shape[1] < 2:
+            raise ValueError(f"{self.kind} needs at least 2 episodes an update (its baseline comes from the others)")
         grad_theta, grad_log_std = self.ascent(episodes)
         if not (bool(torch.isfinite(grad_theta).all()) and bool(torch.isfinite(grad_log_std).all())):
             raise ValueError(f"{self.kind}'s gradient is not finite; the policy was not updated")

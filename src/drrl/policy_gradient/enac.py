@@ -28,8 +28,6 @@ class ENAC(PolicyGradient):
 
     def ascent(self, episodes: Episodes) -> tuple[torch.Tensor, torch.Tensor]:
         batch = episodes.alive.shape[1]
-        if batch < 2:
-            raise ValueError("eNAC's regression needs at least 2 episodes an update")
         theta = self.theta.detach().expand(batch, -1).clone().requires_grad_(True)
         log_std = self.log_std.detach().expand(batch, -1).clone().requires_grad_(True)
         logp = log_probs(self.policy, theta, log_std, episodes, self.discrete)[:, :, 0]  # (T, B)

@@ -25,8 +25,6 @@ class Reinforce(PolicyGradient):
 
     def ascent(self, episodes: Episodes) -> tuple[torch.Tensor, torch.Tensor]:
         batch = episodes.alive.shape[1]
-        if batch < 2:
-            raise ValueError("REINFORCE's leave-one-out baseline needs at least 2 episodes an update")
         returns = episodes.rewards_to_go().to(self.theta.device)
         baseline = (returns.sum(1, keepdim=True) - returns) / (batch - 1)
         advantage = ((returns - baseline) * episodes.alive.to(returns.device)).to(torch.float32)
