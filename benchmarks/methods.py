@@ -61,6 +61,7 @@ def main() -> None:
     parser.add_argument("--policy", help="every drrl method's policy (default: the method's)")
     parser.add_argument("--methods", default="SyS-PGPE,REINFORCE,eNAC,PPO (SB3)")
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0, help="run seeds first-seed, first-seed + 1, ...")
     parser.add_argument("--budget", type=int, default=3000)
     parser.add_argument("--pgpe", default="{}", help="PGPE's settings as JSON (default: the task's suggested)")
     parser.add_argument("--action", default="{}", help="REINFORCE's and eNAC's settings as JSON (default: theirs)")
@@ -68,8 +69,13 @@ def main() -> None:
     parser.add_argument("--eval-every", type=int, default=1)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("methods.jsonl"))
+    parser.add_argument("--table", type=Path, nargs="+", help="only print the table of these runs' JSON lines")
     args = parser.parse_args()
     entry = lookup(args.env)
+    if args.table:
+        results = [json.loads(line) for path in args.table for line in path.read_text().splitlines() if line]
+        print_table(results, entry.criteria())
+        return
     task = {"env": args.env, "eval_episodes": args.eval_episodes, "eval_every": args.eval_every}
     if args.policy:
         task["policy"] = args.policy
@@ -80,7 +86,7 @@ def main() -> None:
     jobs = [
         (m, s, args.budget, pgpe if "PGPE" in m else task, action if m in ACTION_SPACE else {})
         for m in methods
-        for s in range(args.seeds)
+        for s in range(args.first_seed, args.first_seed + args.seeds)
     ]
     start = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool, args.out.open("w") as out:
@@ -95,13 +101,18 @@ def main() -> None:
                 f"{last['center_return']:.1f}, {result['wall']:.0f} s",
                 flush=True,
             )
-    criteria = entry.criteria()
-    print(f"\n{entry.env_id}, budget {args.budget}, seeds 0–{args.seeds - 1}, {time.perf_counter() - start:.0f} s wall")
+    seeds = f"seeds {args.first_seed}–{args.first_seed + args.seeds - 1}"
+    print(f"\n{entry.env_id}, budget {args.budget}, {seeds}, {time.perf_counter() - start:.0f} s wall")
+    print_table(results, entry.criteria())
+
+
+def print_table(results: list[dict], criteria: tuple[str, ...]) -> None:
+    """A Markdown row per method: median real episodes to each criterion, seeds that met it, per seed."""
     header = [f"median episodes to {c}" for c in criteria] + [f"seeds {c}" for c in criteria]
     print("| method | " + " | ".join(header) + " | median steps to " + criteria[0] + " | median wall s | per seed |")
     print("|" + " --- |" * (len(header) + 4))
-    for method in methods:
-        runs = [r for r in results if r["method"] == method]
+    for method in dict.fromkeys(r["method"] for r in results):
+        runs = sorted((r for r in results if r["method"] == method), key=lambda r: r["seed"])
         firsts = {c: [first(r["rows"], c) for r in runs] for c in criteria}
         steps = [first(r["rows"], criteria[0], "real_steps") for r in runs]
         medians = [show(statistics.median(firsts[c])) for c in criteria]

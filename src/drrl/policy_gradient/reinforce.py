@@ -6,7 +6,7 @@ From B episodes of the stochastic policy π_θ,
 
 where G_t is the return that follows action a_t (every reward after it, undiscounted as the thesis's episodic J
 2.11 with a_k = 1) and b_t the baseline of 2.7. Subtracting b_t leaves the estimate unbiased when b_t does not
-depend on the episode's own actions, and removes most of its variance: here b_t is the mean of G_t over the
+depend on the episode's own actions, and reduces its variance: here b_t is the mean of G_t over the
 *other* B − 1 episodes (leave-one-out), a time-indexed baseline that needs no value function and stays unbiased
 for recurrent policies whose "state" is their whole history. Rewards past an episode's end are 0, so a failed
 episode's G_t compares with what the others still earned at the same step.
