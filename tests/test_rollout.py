@@ -81,6 +81,19 @@ def test_action_map_scales_bounded_boxes_and_picks_discrete_argmax():
     assert discrete.size == 3 and discrete(torch.tensor([[0.1, 0.9, 0.2], [2.0, 0.0, 0.0]])).tolist() == [0, -1]
 
 
+def test_action_map_s_raw_outputs_map_back_onto_the_actions_they_came_from():
+    for space, actions in (
+        (spaces.Box(-2.0, 2.0, (1,), np.float32), [[1.0], [-2.0]]),
+        (spaces.Box(np.array([0, 10], np.float32), np.array([1, 20], np.float32)), [[0.5, 10.0]]),
+        (spaces.Box(-np.inf, np.inf, (2,), np.float32), [[7.0, -3.0]]),
+        (spaces.Discrete(3, start=-1), [0, -1, 1]),
+    ):
+        action_map = ActionMap(space)
+        raw = action_map.raw(actions)
+        assert raw.dtype == np.float32 and raw.shape == (len(actions), action_map.size)
+        np.testing.assert_allclose(action_map(torch.as_tensor(raw)), actions)
+
+
 def test_unsupported_spaces_are_refused_with_the_reason():
     with pytest.raises(ValueError, match="needs a 1-D Box"):
         make_batch_env("FrozenLake-v1", 2)

@@ -30,20 +30,13 @@ class PPOPolicy(Policy):
     ``evaluate`` runs and counts it as any drrl policy. It has no weights of its own to search."""
 
     def __init__(self, model, action_space: spaces.Space):
-        size = ActionMap(action_space).size
-        super().__init__(observation_size(model.observation_space), size, [(1,)])
-        self.model, self.space = model, action_space
+        self.action_map = ActionMap(action_space)
+        super().__init__(observation_size(model.observation_space), self.action_map.size, [(1,)])
+        self.model = model
 
     def act(self, weights: list[torch.Tensor], obs: torch.Tensor, state: Any) -> tuple[torch.Tensor, Any]:
         actions, _ = self.model.predict(obs.reshape(-1, obs.shape[-1]).cpu().numpy(), deterministic=True)
-        space = self.space
-        if isinstance(space, spaces.Discrete):
-            raw = np.eye(self.action_size, dtype=np.float32)[np.asarray(actions) - int(space.start)]
-        elif isinstance(space, spaces.Box) and space.is_bounded():
-            raw = (actions - (space.high + space.low) / 2) / ((space.high - space.low) / 2)
-        else:
-            raw = actions
-        return torch.as_tensor(np.asarray(raw, dtype=np.float32)).view(*obs.shape[:2], -1), state
+        return torch.as_tensor(self.action_map.raw(actions)).view(*obs.shape[:2], -1), state
 
     def initial_center(self, generator: torch.Generator | None = None) -> torch.Tensor:
         return torch.zeros(1)

@@ -160,3 +160,13 @@ class ActionMap:
         if not self._unit:
             action = torch.addcmul(self._middle.to(action.device), action, self._half_range.to(action.device))
         return action.cpu().numpy().astype(self._dtype, copy=False)
+
+    def raw(self, actions) -> np.ndarray:
+        """The raw outputs (N, size) float32 that this map turns into ``actions``: a Discrete choice one-hot, a
+        bounded Box's values scaled back onto [-1, 1], an unbounded Box's as they are."""
+        if self._discrete:
+            return np.eye(self.size, dtype=np.float32)[np.asarray(actions, dtype=np.int64).reshape(-1) - self._start]
+        raw = np.asarray(actions, dtype=np.float32).reshape(-1, self.size)
+        if self._bounded and not self._unit:
+            raw = (raw - self._middle.numpy()) / self._half_range.numpy()
+        return raw
