@@ -31,13 +31,13 @@ class ActionSpace(ModelFree):
 
     def __init__(self, config: TrainConfig, policy: Policy, backend: LocalBackend, workload: Workload):
         super().__init__(config, policy, backend, workload)
-        self.env = backend.env
+        self.local = backend  # the backend, typed as the local one whose env the episodes run on
 
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         method = setup.search
         assert isinstance(method, PolicyGradient)
         seed = derive_seed(self.config.seed, iteration, TRAINING)
-        episodes = collect(method.explorer(), method.center, self.env, seed, self.config.max_steps)
+        episodes = collect(method.explorer(), method.center, self.local.env, seed, self.config.max_steps)
         method.improve(episodes)
         result = episodes.evaluation
         return counted(counters, iteration, result) | {
