@@ -12,6 +12,7 @@ from drrl.models import Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, Im
 from drrl.models import fit as fit_module
 from drrl.models.fit import clip_member_gradients, fit
 from drrl.models.quality import k_step_errors, model_quality_report
+from drrl.models.recurrent import MODEL_KINDS
 from drrl.policies import linear
 from drrl.rollout import evaluate
 
@@ -309,6 +310,27 @@ def test_the_imagined_env_can_use_the_models_own_reward_and_penalise_disagreemen
         env.reset(seed=[1, 2])
         rewards.append(env.step(np.zeros((2, 1), np.float32))[1])
     assert (rewards[1] < rewards[0]).all()
+
+
+@pytest.mark.parametrize("kind", MODEL_KINDS)
+def test_each_imagined_episode_is_stepped_by_its_own_member_alone(kind):
+    """Grouping the episodes by member (one member steps each) gives what every member stepping every episode
+    gives for the episode's own member, across restarts that draw new members."""
+    torch.manual_seed(0)
+    ensemble = WorldModel(4, 1, (8,), kind, members=3)
+    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    own = ImaginedEnv(ensemble, cartpole_starts(), 7, action_space, horizon=3)
+    every = ImaginedEnv(ensemble, cartpole_starts(), 7, action_space, horizon=3, disagreement_penalty=1e-30)
+    actions = np.random.default_rng(0).uniform(-1, 1, (10, 7, 1)).astype(np.float32)
+    for env in (own, every):
+        env.reset(seed=list(range(7)))
+    assert own._slots.numel() < every._slots.numel()
+    for action in actions:
+        mine, theirs = own.step(action), every.step(action)
+        np.testing.assert_allclose(mine[0], theirs[0], rtol=1e-5, atol=1e-6)  # next observations
+        np.testing.assert_array_equal(mine[3], theirs[3])  # the same restarts
+    torch.testing.assert_close(own._member, every._member)
+    assert len(set(own._member.tolist())) > 1
 
 
 # ------------------------------------------------------------------------------------------------ quality report

@@ -9,6 +9,10 @@ real environment: imagined steps cost no real samples, and the training loop cou
 
 Episode seeds (``reset(seed=[...])``, one per sub-environment) fix each episode's start and member, so candidates of
 one PGPE generation are compared on the same imagined starts, as they are on real ones.
+
+Each episode is stepped by its own member only: the episodes are grouped by member into a (K, G) batch, G the
+largest group, so an ensemble of K costs about what one model does. With a disagreement penalty every member steps
+every episode, since the penalty needs all their predictions.
 """
 
 from __future__ import annotations
@@ -124,9 +128,13 @@ class ImaginedEnv(VectorEnv):
         self.action_space = batch_space(action_space, num_envs)
         self._rng = np.random.default_rng()
         self._observation: torch.Tensor | None = None
-        self._state: list[torch.Tensor] = []
+        self._every_member = bool(disagreement_penalty) or len(model) == 1  # every member steps every env
         self._member = torch.zeros(num_envs, dtype=torch.long, device=self.device)
-        self._envs = torch.arange(num_envs, device=self.device)
+        # the (K, G) envs each member steps (N pads a group), env n's place in its member's group, and the state
+        # (K, G, ·) in that layout
+        self._slots = torch.zeros(len(model), 1, dtype=torch.long, device=self.device)
+        self._position = torch.zeros(num_envs, dtype=torch.long, device=self.device)
+        self._state: list[torch.Tensor] = []
         self._observed = torch.ones(num_envs, dtype=torch.bool, device=self.device)  # o_t is a real start
         self.elapsed_steps = np.zeros(num_envs, dtype=np.int64)
         self._ended = np.zeros(num_envs, dtype=bool)
@@ -146,7 +154,8 @@ class ImaginedEnv(VectorEnv):
             self._rng = np.random.default_rng([int(s) for s in seed])  # for autoresets only
         self._observation = self._starts[torch.as_tensor(starts, device=self.device)]
         self._member = torch.as_tensor(members, device=self.device)
-        self._state = self.model.initial_state(self.num_envs)
+        self._group()
+        self._state = self.model.initial_state(self._slots.shape[1])
         self._observed[:] = True
         self.elapsed_steps[:] = 0
         self._ended[:] = False
@@ -159,8 +168,10 @@ class ImaginedEnv(VectorEnv):
         if self._observation is None:
             raise RuntimeError("call reset() before step()")
         action = torch.as_tensor(model_actions(actions, self.single_action_space), device=self.device)
-        prediction, self._state = self.model.step(self._observation, action, self._state, self._observed)
-        own = (self._member, self._envs)  # each env's own member
+        prediction, self._state = self.model.step(
+            self._grouped(self._observation), self._grouped(action), self._state, self._grouped(self._observed)
+        )
+        own = (self._member, self._position)  # each env's prediction by its own member
         self._observation = prediction.observations[own]
         self.elapsed_steps += 1
         if self.known_reward is not None:
@@ -191,8 +202,41 @@ class ImaginedEnv(VectorEnv):
         self._observation = self._observation.index_put(
             (index,), self._starts[torch.as_tensor(starts, device=self.device)]
         )
-        self._member[index] = torch.as_tensor(members, device=self.device)
         self._observed[index] = True
         self.elapsed_steps[envs] = 0
-        for tensor in self._state:
-            tensor[:, index] = 0.0
+        if self._every_member:  # the layout stays
+            self._member[index] = torch.as_tensor(members, device=self.device)
+            for tensor in self._state:
+                tensor[:, index] = 0.0
+            return
+        own = (self._member, self._position)
+        flat = [tensor[own].index_fill(0, index, 0.0) for tensor in self._state]  # (N, ·) each env's own state
+        self._member[index] = torch.as_tensor(members, device=self.device)
+        self._group()
+        self._state = [_padded(tensor)[self._slots] for tensor in flat]
+
+    def _grouped(self, rows: torch.Tensor) -> torch.Tensor:
+        """Per-env ``rows`` (N, …) in the members' layout (K, G, …); as they are if every member steps every env."""
+        return rows if self._every_member else _padded(rows)[self._slots]
+
+    def _group(self) -> None:
+        """Which envs each member steps: all of them for the disagreement penalty, else its own episodes, padded
+        with the scratch row N to the largest group."""
+        members, n = len(self.model), self.num_envs
+        if self._every_member:
+            self._slots = torch.arange(n, device=self.device).expand(members, n)
+            self._position = torch.arange(n, device=self.device)
+            return
+        order = torch.argsort(self._member, stable=True)
+        counts = torch.bincount(self._member, minlength=members)
+        first = torch.cumsum(counts, 0) - counts  # where each member's envs begin in ``order``
+        position = torch.arange(n, device=self.device) - first[self._member[order]]
+        self._slots = torch.full((members, int(counts.max())), n, dtype=torch.long, device=self.device)
+        self._slots[self._member[order], position] = order
+        self._position = torch.empty_like(position)
+        self._position[order] = position
+
+
+def _padded(rows: torch.Tensor) -> torch.Tensor:
+    """``rows`` (N, …) with a row of zeros appended, the scratch row N that pads the groups."""
+    return torch.cat([rows, rows.new_zeros(1, *rows.shape[1:])])

@@ -214,14 +214,14 @@ class WorldModel(nn.Module):
         """One unfolded step for a batch: o_t (B, o) and a_t (B, a), read by every member, or (K, B, ·) each its
         own → every member's prediction of step t+1 (K, B, ·), new state.
 
-        ``observed`` (a bool, or one per sequence) False marks a step of the overshooting part: with
+        ``observed`` (a bool, or one per sequence, (B,) or (K, B)) False marks a step of the overshooting part: with
         ``future_inputs="zeros"`` the network then reads 0 instead of ``observation`` (which is still the base the
         predicted change is added to).
         """
         observation = self._per_member_inputs(observation, 2)
         x = self._normalise(observation)
         if self.future_inputs == "zeros" and observed is not True:
-            x = x * torch.as_tensor(observed, dtype=x.dtype, device=x.device).reshape(1, -1, 1)
+            x = x * torch.as_tensor(observed, dtype=x.dtype, device=x.device).unsqueeze(-1)
         y, new_state = self._advance(torch.cat([x, self._per_member_inputs(action, 2)], dim=-1), state)
         rewards, ends = self._heads(y)
         return Prediction(self._next_observation(observation, y), rewards, ends), new_state
