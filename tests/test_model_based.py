@@ -88,6 +88,21 @@ def test_the_in_model_search_stops_early_once_it_stops_improving():
     assert row["imagined_episodes"] == row["generations"] * 10 * 2
 
 
+def test_an_in_model_search_whose_candidates_all_tie_says_so_and_widens_sigma():
+    """A model in which every policy earns the same return gives no gradient: each such generation is counted in
+    the row, μ stays where it is and σ grows."""
+    config = TrainConfig.model_validate(
+        dict(popsize=10, episodes_per_candidate=2, budget=2, eval_episodes=5, model_based=QUICK_MODEL)
+    )
+    setup = prepare(config)
+    setup.world.known_reward = lambda observations, steps: (np.zeros(len(observations)), np.zeros(len(steps), bool))
+    start_center, start_sigma = setup.search.center, setup.search.sigma
+    row = run(setup).rows[0]
+    assert row["tied_generations"] == row["generations"] == 3
+    assert (setup.search.center == start_center).all()
+    assert row["sigma_norm"] == pytest.approx(float(start_sigma.norm()) * 1.2**3, rel=1e-5)
+
+
 def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
     short = EpisodeBuffer(
         [Episode(np.zeros((9, 4), np.float32), np.zeros((8, 1), np.float32), np.zeros(8, np.float32), True)]

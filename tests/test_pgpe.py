@@ -140,14 +140,28 @@ def test_only_supersymmetric_sampling_does_without_the_baseline(sampler, uses_ba
 
 def test_sigma_change_is_bounded_by_max_sigma_change():
     pgpe = PGPE(torch.zeros(2), popsize=4, sigma_init=1.0, sigma_lr=10.0, max_sigma_change=0.2)
+    inject(pgpe, [3.0, 0.1], [0.1, 3.0])
     pgpe.ask()
-    pgpe.tell(torch.zeros(4))  # first tell: b = 0 and every advantage is 0
-    close(pgpe.sigma, [1.0, 1.0])
-    inject(pgpe, [3.0, 0.1], [3.0, 0.1])
-    pgpe.ask()
-    pgpe.tell(torch.full((4,), 100.0))  # b = 0.1 · 0 + 0.9 · 100 = 90: advantage 10 in both pairs
-    # Δσ = 10 · 10 · (ε² - σ²)/σ = (800, -99): clamped to +20% and -20%, so σ stays positive
+    pgpe.tell(torch.tensor([110.0, 110.0, 70.0, 70.0]))  # first tell: b = 90, advantages +20 and -20
+    # (ε² - σ²)/σ = (8, -0.99) and (-0.99, 8); Δσ = 10 · mean(20 · (8, -0.99), -20 · (-0.99, 8)) = (899, -899):
+    # clamped to +20% and -20%, so σ stays positive
     close(pgpe.sigma, [1.2, 0.8])
+    close(pgpe.center, [0.0, 0.0])  # r⁺ = r⁻ in both pairs
+
+
+@pytest.mark.parametrize("sampler", SAMPLERS)
+def test_flat_fitness_keeps_the_centre_and_widens_sigma_by_the_largest_step(sampler):
+    """Every candidate tied (no gradient): μ stays, σ grows by 1 + c until the candidates differ."""
+    pgpe = PGPE(torch.ones(3), popsize=8, sampler=sampler, sigma_init=0.5, max_sigma_change=0.2, optimizer="adam")
+    for generation in range(1, 4):
+        pgpe.ask()
+        metrics = pgpe.tell(torch.full((8,), -229.0))
+        assert metrics["tied"] == 1.0 and metrics["center_step_norm"] == 0.0
+        close(pgpe.center, [1.0, 1.0, 1.0])
+        close(pgpe.sigma, [0.5 * 1.2**generation] * 3)
+    pgpe.ask()
+    metrics = pgpe.tell(torch.arange(8.0))
+    assert metrics["tied"] == 0.0 and metrics["center_step_norm"] > 0
 
 
 # ------------------------------------------------------------------------------------- super-symmetric mirror

@@ -128,7 +128,7 @@ class ModelBased(World):
         self.backend.use(
             Workload(self.policy, imagined, config.popsize, config.episodes_per_candidate, config.max_steps)
         )
-        generations = self.search_in_model(search, counters, iteration)
+        generations, tied = self.search_in_model(search, counters, iteration)
         search_end = time.perf_counter()
         # the centre in the model (the loop measures it in reality)
         env = imagined.make(config.episodes_per_generation)
@@ -142,6 +142,7 @@ class ModelBased(World):
             "imagined_episodes": counters.imagined_episodes,
             "imagined_steps": counters.imagined_steps,
             "generations": generations,
+            "tied_generations": tied,
             "mean_return": float(real.returns.mean()),
             "imagined_center_return": float(in_model.returns[0]),
             "sigma_norm": float(search.spread.norm()),
@@ -152,18 +153,19 @@ class ModelBased(World):
             "search_time": round(search_end - search_start, 3),
         }
 
-    def search_in_model(self, search: Search, counters: Counters, iteration: int) -> int:
-        """Generations on imagined episodes, counted in ``counters``; returns how many ran.
+    def search_in_model(self, search: Search, counters: Counters, iteration: int) -> tuple[int, int]:
+        """Generations on imagined episodes, counted in ``counters``; returns how many ran, and in how many every
+        candidate's imagined return was the same (no gradient: PGPE widens σ, ``drrl.search.pgpe``).
 
         Stops early (beyond the thesis, for speed) once the best mean imagined return of a generation's candidates
         has not improved for ``patience`` generations: the search has converged on this model, and more generations
         would only fit the model's errors.
         """
-        best, since_best, generation = float("-inf"), 0, 0
+        best, since_best, generation, tied = float("-inf"), 0, 0, 0
         for generation in range(1, self.settings.generations + 1):
             seed = derive_seed(self.config.seed, iteration * 1_000_000 + generation, IMAGINING)
             try:
-                evaluation, _metrics = run_generation(search, self.backend, seed)
+                evaluation, metrics = run_generation(search, self.backend, seed)
             except NonFiniteOutput as error:
                 raise ModelDiverged(
                     f"iteration {iteration}, generation {generation}: the model imagined {error}; "
@@ -172,11 +174,12 @@ class ModelBased(World):
             counters.generations += 1
             counters.imagined_episodes += evaluation.episodes
             counters.imagined_steps += evaluation.steps
+            tied += int(metrics.get("tied", 0))
             mean = float(evaluation.returns.mean())
             best, since_best = (mean, 0) if mean > best else (best, since_best + 1)
             if since_best >= self.settings.patience:
                 break
-        return generation
+        return generation, tied
 
     def state_dict(self) -> dict:
         model = {name: tensor.detach().cpu().clone() for name, tensor in self.model.state_dict().items()}

@@ -29,6 +29,10 @@ Departures from the thesis, and why
     * The μ step may go through Adam or ClipUp instead of plain gradient ascent ("sgd", the thesis).
     * "supersymmetric" is not in the thesis; see ``mirror_about_median`` and
       ``_supersymmetric_sigma_gradient`` for how it was reconstructed.
+    * Flat fitness: when every candidate of a generation earned the same return (e.g. every one drives its action
+      to the same bound, so all fail alike), the estimate is zero and μ and σ would never move again. μ then stays
+      and σ grows by the largest step allowed, σ ← σ · (1 + c), until the candidates differ, as CMA-ES does on flat
+      fitness (Hansen, "The CMA Evolution Strategy: A Tutorial"). The generation's metrics say "tied".
     * With fitness shaping, every formula sees the shaped values. Centred ranks sum to zero, so b, initialised to
       their mean, stays 0: SyS with centred ranks has the natural baseline 0.
 """
@@ -197,20 +201,26 @@ class PGPE(Search):
     # ----------------------------------------------------------------- tell
     def _update(self, fitness: torch.Tensor) -> dict[str, float]:
         """Update μ and σ from the checked fitness. Metrics: "baseline" (the b of 2.33 used, on shaped values when
-        shaping is on), "sigma_mean" (the new σ) and "center_step_norm" (‖Δμ‖)."""
+        shaping is on), "sigma_mean" (the new σ), "center_step_norm" (‖Δμ‖) and "tied" (1 when every
+        candidate's fitness was the same, module docstring)."""
         if self._noise is None:
             raise RuntimeError("tell() needs candidates from ask() first (each ask is told once)")
         shaped = shape_fitness(fitness.to(self._mu.device), self.fitness_shaping)
         self._update_baseline(float(shaped.mean()))  # 2.33, before the update (Algorithm 2, step 6)
-        grad_mu, grad_sigma = self._gradients(shaped, self._noise)
         old_mu = self._mu.detach().clone()
-        self._step_center(grad_mu)
-        self._step_sigma(grad_sigma)
+        tied = bool((fitness == fitness[0]).all())
+        if tied:
+            self._sigma = self._sigma * (1 + self.max_sigma_change)
+        else:
+            grad_mu, grad_sigma = self._gradients(shaped, self._noise)
+            self._step_center(grad_mu)
+            self._step_sigma(grad_sigma)
         self._noise = None
         return {
             "baseline": self._baseline,
             "sigma_mean": float(self._sigma.mean()),
             "center_step_norm": float((self._mu.detach() - old_mu).norm()),
+            "tied": float(tied),
         }
 
     def _update_baseline(self, mean: float) -> None:
