@@ -155,6 +155,18 @@ def test_the_model_learns_a_known_linear_system(kind):
     assert errors[0] < 0.3 and errors[-1] < 0.5 and errors[-1] < untrained[-1] / 10
 
 
+@pytest.mark.parametrize(("episodes", "stop"), [(10, "patience"), (4, "max_updates")])
+def test_a_fit_stops_early_on_its_held_out_loss_only_when_episodes_are_held_out(episodes, stop):
+    """A tiny step size makes no validation improve on the last: with episodes held out (2 of 10) the fit stops
+    after ``patience`` validations; with 4 episodes none is held out and the fit runs to ``max_updates``."""
+    torch.manual_seed(0)
+    model = WorldModel(2, 1, (8,))
+    settings = FitSettings(unfold=2, overshoot=2, learn_reward=False, lr=1e-12, max_updates=40, validate_every=5)
+    [report] = fit(model, EpisodeBuffer(linear_system_episodes(episodes, 20, seed=1)), settings, seed=0)
+    assert (report.stop, report.updates) == ((stop, 25) if stop == "patience" else (stop, 40))
+    assert report.held_out_episodes == (2 if stop == "patience" else 0)
+
+
 # ------------------------------------------------------------------------------------------------ data
 def test_windows_align_targets_and_mask_steps_past_the_end():
     observations = np.arange(6, dtype=np.float32)[:, None]  # o_0..o_5: 5 steps
@@ -315,7 +327,7 @@ def test_the_imagined_env_can_use_the_models_own_reward_and_penalise_disagreemen
 @pytest.mark.parametrize("kind", MODEL_KINDS)
 def test_each_imagined_episode_is_stepped_by_its_own_member_alone(kind):
     """Grouping the episodes by member (one member steps each) gives what every member stepping every episode
-    gives for the episode's own member, across restarts that draw new members."""
+    gives for the episode's own member, across restarts, which keep the layout."""
     torch.manual_seed(0)
     ensemble = WorldModel(4, 1, (8,), kind, members=3)
     action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
@@ -325,12 +337,14 @@ def test_each_imagined_episode_is_stepped_by_its_own_member_alone(kind):
     for env in (own, every):
         env.reset(seed=list(range(7)))
     assert own._slots.numel() < every._slots.numel()
+    layout = own._slots.clone()
     for action in actions:
         mine, theirs = own.step(action), every.step(action)
         np.testing.assert_allclose(mine[0], theirs[0], rtol=1e-5, atol=1e-6)  # next observations
         np.testing.assert_array_equal(mine[3], theirs[3])  # the same restarts
     torch.testing.assert_close(own._member, every._member)
     assert len(set(own._member.tolist())) > 1
+    torch.testing.assert_close(own._slots, layout)
 
 
 # ------------------------------------------------------------------------------------------------ quality report

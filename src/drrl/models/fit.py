@@ -5,7 +5,9 @@ Minibatches of windows go through ``WorldModel.unfold``; the squared error summe
 Adam with λ of Algorithm 4) or torch's own, with the step size decaying along a cosine to 0 over ``max_updates``
 (beyond the thesis: the loss is dominated by a few hard windows, e.g. of a falling pole, and a constant step keeps
 the fit jumping around). A random part of the episodes is held out; training stops once their loss has not improved
-for ``patience`` validations, and the model keeps the weights of its best validation. The K members of an ensemble
+for ``patience`` validations, and the model keeps the weights of its best validation. With too few episodes to hold
+any out, the training loss stands in for the held-out loss in choosing the weights kept, but never stops the fit
+early: it would stop on the noise of the minibatches, not on overfitting. The K members of an ensemble
 are fitted side by side in one batched network, each on its own split of the episodes.
 
 Divergence: a loss that turns NaN or infinite stops the fit at once; the model gets back the weights of its last
@@ -113,6 +115,7 @@ def fit(
         [held_out if len(held_out) else training for training, held_out in splits], buffer, episode_of_window
     )
     train_counts = train_weight.sum(1)
+    may_stop_early = all(len(held_out) for _, held_out in splits)
     generator = torch.Generator().manual_seed(seed)
     parameters = list(model.parameters())
     optimizer = make_model_optimizer(settings.optimizer, parameters, settings.lr, settings.momentum)
@@ -160,7 +163,7 @@ def fit(
             for kept, p in zip(best_state, parameters, strict=True):
                 kept[improved] = p.detach()[improved]
             since_best = torch.where(improved, 0, since_best + 1)
-            if (since_best >= settings.patience).all():
+            if may_stop_early and (since_best >= settings.patience).all():
                 stop = "patience"
                 break
     with torch.no_grad():

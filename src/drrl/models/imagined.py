@@ -1,11 +1,12 @@
 """The learned model as a batched environment: a Gymnasium ``VectorEnv`` that PGPE searches in unchanged.
 
 Every sub-environment starts from a real start observation drawn from the buffer, with a member of the ensemble
-drawn for that episode, and then lives in the model: each step feeds the current (predicted) observation and the
-policy's action to the model, which is dynamical consistency (3.3.3) at imagination time. Rewards and ends come
-either from the task's reward in closed form applied to the predicted observations (``known_reward``, e.g. the
-thesis's 5.8, from drrl's environment registry) or from the model's reward and end heads. Nothing here touches the
-real environment: imagined steps cost no real samples, and the training loop counts them apart.
+drawn at reset (an episode restarted later keeps its env's member), and then lives in the model: each step feeds the
+current (predicted) observation and the policy's action to the model, which is dynamical consistency (3.3.3) at
+imagination time. Rewards and ends come either from the task's reward in closed form applied to the predicted
+observations (``known_reward``, e.g. the thesis's 5.8, from drrl's environment registry) or from the model's reward
+and end heads. Nothing here touches the real environment: imagined steps cost no real samples, and the training loop
+counts them apart.
 
 Episode seeds (``reset(seed=[...])``, one per sub-environment) fix each episode's start and member, so candidates of
 one PGPE generation are compared on the same imagined starts, as they are on real ones.
@@ -91,7 +92,7 @@ class ImaginedEnv(VectorEnv):
     """``num_envs`` imagined episodes stepped together by a learned model, with next-step autoreset.
 
     Args:
-        model: the world model(s); a member is drawn per episode.
+        model: the world model(s); a member is drawn per env at reset.
         start_observations: real start observations (S, o) to reset from.
         action_space: the real env's single action space (the policy's actions pass through unchanged).
         horizon: steps after which an imagined episode is truncated (the real task's).
@@ -195,7 +196,9 @@ class ImaginedEnv(VectorEnv):
         return rng.integers(len(self._starts), size=n), rng.integers(len(self.model), size=n)
 
     def _restart(self, envs: np.ndarray) -> None:
-        starts, members = self._draw(self._rng, len(envs))
+        """New episodes in ``envs`` from fresh real starts; each keeps its env's member, so the layout stays (were
+        members drawn again, those whose episodes end late would gather ever more envs)."""
+        starts, _members = self._draw(self._rng, len(envs))
         index = torch.as_tensor(envs, device=self.device)
         assert self._observation is not None  # restarts follow a reset
         # out of place: the observations handed out by the previous step must not change
@@ -204,16 +207,9 @@ class ImaginedEnv(VectorEnv):
         )
         self._observed[index] = True
         self.elapsed_steps[envs] = 0
-        if self._every_member:  # the layout stays
-            self._member[index] = torch.as_tensor(members, device=self.device)
-            for tensor in self._state:
-                tensor[:, index] = 0.0
-            return
-        own = (self._member, self._position)
-        flat = [tensor[own].index_fill(0, index, 0.0) for tensor in self._state]  # (N, ·) each env's own state
-        self._member[index] = torch.as_tensor(members, device=self.device)
-        self._group()
-        self._state = [_padded(tensor)[self._slots] for tensor in flat]
+        rows = (slice(None), index) if self._every_member else (self._member[index], self._position[index])
+        for tensor in self._state:
+            tensor[rows] = 0.0
 
     def _grouped(self, rows: torch.Tensor) -> torch.Tensor:
         """Per-env ``rows`` (N, …) in the members' layout (K, G, …); as they are if every member steps every env."""

@@ -15,6 +15,7 @@ from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
 from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS
 
 REWARD_MODES = ("auto", "known", "learned")
+VALIDATE_EVERY = 50  # gradient steps between two measurements of a fit's held-out loss
 MAX_WIDTH = 65_536  # units in a layer: wider is a typo, and would not fit in memory with its neighbours
 CHOICES = {
     "model_kind": MODEL_KINDS,
@@ -72,6 +73,13 @@ class ModelBasedSettings(BaseModel):
         le=10**7,
         description="most gradient steps of every later fit, which starts from the previous model's weights",
     )
+    fit_patience: int = Field(
+        2,
+        ge=1,
+        le=1_000_000,
+        description=f"stop a fit once its held-out loss has not improved over this many validations, one every "
+        f"{VALIDATE_EVERY} updates",
+    )
 
     @field_validator(*CHOICES)
     @classmethod
@@ -95,7 +103,8 @@ class ModelBasedSettings(BaseModel):
             lr=self.model_lr,
             batch_size=self.fit_batch_size,
             max_updates=self.fit_updates if first else self.refit_updates,
-            validate_every=min(100, self.fit_updates if first else self.refit_updates),
+            validate_every=min(VALIDATE_EVERY, self.fit_updates if first else self.refit_updates),
+            patience=self.fit_patience,
         )
 
 
