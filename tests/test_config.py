@@ -64,3 +64,17 @@ def test_gymnasiums_envs_start_from_their_own_model_free_defaults_and_given_sett
     for own in ("cartpole", "drrl/CartPole-v0", "baxter-reach-right"):
         assert TrainConfig(env=own).model_dump(exclude={"env"}) == TrainConfig().model_dump(exclude={"env"})
     assert TrainConfig(env="Hopper-v5", model_based={}).policy == TrainConfig().policy  # model-based: its own
+
+
+def test_the_swing_up_starts_from_its_own_settings_and_its_config_file_spells_out_the_model_based_ones():
+    swing_up = TrainConfig(env="cartpole-swingup")
+    assert (swing_up.policy, swing_up.popsize, swing_up.budget, swing_up.sigma_init) == ("mlp:16", 200, 40_000, 0.25)
+    assert TrainConfig(env="cartpole-swingup", popsize=100).popsize == 100
+    model_based = TrainConfig(env="cartpole-swingup", model_based={})
+    assert (model_based.policy, model_based.budget, model_based.episodes_per_candidate) == ("mlp:16", 30, 1)
+    assert model_based.model_based is not None and model_based.model_based.model_kind == "lstm"
+    smaller = TrainConfig(env="cartpole-swingup", model_based={"ensemble_size": 3})
+    assert smaller.model_based is not None
+    assert (smaller.model_based.ensemble_size, smaller.model_based.model_kind) == (3, "lstm")  # the table merges
+    path = Path(__file__).parents[1] / "configs" / "cartpole-swingup-model-based.toml"
+    assert TrainConfig.model_validate(load_config_file(path)) == model_based

@@ -370,6 +370,15 @@ def test_compare_configs_keep_shared_settings_and_set_each_method():
     assert (enac.search, enac.policy, enac.popsize, enac.optimizer) == ("enac", "linear", 32, "clipup")
 
 
+def test_compare_on_the_swing_up_gives_every_method_the_swing_ups_own_settings():
+    settings = {"env": "cartpole-swingup"}
+    sys_pgpe = method_config("SyS-PGPE", 0, 40_000, settings)
+    assert (sys_pgpe.policy, sys_pgpe.popsize, sys_pgpe.fitness_shaping) == ("mlp:16", 200, "centered_ranks")
+    model_based = method_config(MODEL_BASED, 0, 30, settings)
+    assert model_based.model_based is not None and model_based.model_based.ensemble_size == 5
+    assert method_config("REINFORCE", 0, 4_000, settings).policy == "mlp:16"
+
+
 def test_model_based_runs_on_a_discrete_action_space_with_one_hot_actions(one_thread):
     from gymnasium import spaces
 

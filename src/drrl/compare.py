@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from drrl.config import TrainConfig
+from drrl.envs.registry import own_entry
 from drrl.train import train
 
 MODEL_FREE = {"REINFORCE-PGPE": "reinforce", "SyS-PGPE": "symmetric", "super-symmetric PGPE": "supersymmetric"}
@@ -57,7 +58,9 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
     (``eval_share`` 1, unless ``settings`` say otherwise), for curves as fine as the model-based ones; REINFORCE needs
     no pairs and super-symmetric PGPE needs a popsize divisible by 4, so their popsize is rounded up to 8 where
     smaller. The action-space methods take the task's settings (``TASK_SETTINGS``) and their own defaults
-    (``POLICY_GRADIENT_DEFAULTS``): PGPE's settings mean nothing to them.
+    (``POLICY_GRADIENT_DEFAULTS``): PGPE's settings mean nothing to them. On an env with settings of its own (the
+    swing-up's ``EnvEntry.defaults`` and ``model_based_defaults``) every method starts from them, as ``drrl train``
+    does.
     """
     base = {key: value for key, value in settings.items() if key != "model_based"}
     if method == MODEL_BASED:
@@ -65,7 +68,10 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
             {**base, "budget": budget, "seed": seed, "model_based": settings.get("model_based") or {}}
         )
     if method in ACTION_SPACE:
-        task = {key: value for key, value in base.items() if key in TASK_SETTINGS}
+        entry = own_entry(base.get("env", "cartpole"))
+        task = {
+            key: value for key, value in {**(entry.defaults if entry else {}), **base}.items() if key in TASK_SETTINGS
+        }
         return TrainConfig.model_validate(
             {"eval_share": 1.0, **task, "search": ACTION_SPACE[method], "budget": budget, "seed": seed}
         )

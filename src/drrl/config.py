@@ -11,7 +11,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from drrl.envs.batch import ENGINES
-from drrl.envs.registry import is_own
+from drrl.envs.registry import is_own, own_entry
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings, one_of
 from drrl.policy_gradient import POLICY_GRADIENTS
 from drrl.search import SEARCHES
@@ -85,8 +85,9 @@ class TrainConfig(BaseModel):
     centre from drifting away from the optimum once there.
 
     ``model_based`` set makes a model-based run; the fields it leaves unset then start from
-    ``MODEL_BASED_DEFAULTS`` instead of the model-free defaults. A model-free run on an
-    env that is not drrl's own starts from ``GYMNASIUM_DEFAULTS`` instead, an action-space policy gradient's from
+    ``MODEL_BASED_DEFAULTS`` and the env's own ``EnvEntry.model_based_defaults`` instead of the model-free
+    defaults. A model-free run on one of drrl's envs starts from its ``EnvEntry.defaults`` (the swing-up has
+    some), on an env that is not drrl's own from ``GYMNASIUM_DEFAULTS``, an action-space policy gradient's from
     ``POLICY_GRADIENT_DEFAULTS``. All merge in one place. sampler,
     optimizer, center_lr, sigma_lr, fitness_shaping, baseline_decay and max_sigma_change are
     PGPE's; CMA-ES (``search = "cmaes"`` or ``"sep-cmaes"``) uses popsize, sigma_init and seed only. The
@@ -162,15 +163,20 @@ class TrainConfig(BaseModel):
     def _defaults_for_the_run(cls, data):
         if not isinstance(data, dict):
             return data
-        if data.get("model_based") is not None:
-            return {**MODEL_BASED_DEFAULTS, **data}
+        env = data.get("env", "cartpole")
+        entry = own_entry(env) if isinstance(env, str) else None
+        table = data.get("model_based")
+        if table is not None:
+            preset = dict(entry.model_based_defaults) if entry else {}
+            if isinstance(table, dict):
+                table = {**preset.pop("model_based", {}), **table}
+            return {**MODEL_BASED_DEFAULTS, **preset, **data, "model_based": table}
         search = data.get("search")
         if isinstance(search, str) and search in POLICY_GRADIENT_DEFAULTS:
             return {**POLICY_GRADIENT_DEFAULTS[search], **data}
-        env = data.get("env", "cartpole")
         if isinstance(env, str) and not is_own(env):
             return {**GYMNASIUM_DEFAULTS, **data}
-        return data
+        return {**entry.defaults, **data} if entry else data
 
     @model_validator(mode="after")
     def _consistent(self) -> TrainConfig:

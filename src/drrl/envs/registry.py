@@ -40,6 +40,8 @@ class EnvEntry:
     explain: Explanation | None = None
     reward: RewardFunction | None = None
     suggested: dict = field(default_factory=dict)  # TrainConfig settings that suit the task
+    defaults: dict = field(default_factory=dict)  # TrainConfig settings a model-free run on the task starts from
+    model_based_defaults: dict = field(default_factory=dict)  # the same for a model-based run, with its table
 
     def criteria(self) -> tuple[str, ...]:
         """The names of the verdict's criteria (metrics.csv columns); none without a verdict."""
@@ -72,6 +74,11 @@ def aliases() -> dict[str, str]:
 def is_own(name: str) -> bool:
     """Whether ``name`` (an alias or a Gymnasium id) is one of drrl's own environments."""
     return aliases().get(name, name) in ENTRIES
+
+
+def own_entry(name: str) -> EnvEntry | None:
+    """The entry of one of drrl's own environments (an alias or a Gymnasium id); None for any other name."""
+    return ENTRIES.get(aliases().get(name, name))
 
 
 def _can_make(name: str) -> bool:
