@@ -1,4 +1,5 @@
 import csv
+import dataclasses
 import json
 import sys
 
@@ -7,12 +8,13 @@ import pytest
 from click.testing import CliRunner
 from pydantic import ValidationError
 
+import drrl.model_based
 from drrl.cli import main
 from drrl.compare import DEFAULT_METHODS, MODEL_BASED, PPO, compare, method_config
 from drrl.config import TrainConfig
 from drrl.envs.registry import lookup
 from drrl.loop import better_center, run
-from drrl.model_based import fitting_settings
+from drrl.model_based import fitting_settings, held_out_loss
 from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings
 from drrl.runs import RunFolder
 from drrl.train import prepare, train
@@ -101,6 +103,31 @@ def test_an_in_model_search_whose_candidates_all_tie_says_so_and_widens_sigma():
     assert row["tied_generations"] == row["generations"] == 3
     assert (setup.search.center == start_center).all()
     assert row["sigma_norm"] == pytest.approx(float(start_sigma.norm()) * 1.2**3, rel=1e-5)
+
+
+def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypatch):
+    """The second iteration's warm-started fit is made to look a million times worse: the model is fitted again
+    from new weights with the first fit's updates, and that fit, far better, is kept and reported."""
+    real_fit, calls, inflated = drrl.model_based.fit, [], []
+
+    def fit(model, buffer, settings, seed):
+        reports = real_fit(model, buffer, settings, seed=seed)
+        calls.append(settings.max_updates)
+        if len(calls) == 2:
+            reports = [dataclasses.replace(report, valid_loss=report.valid_loss * 1e6) for report in reports]
+            inflated.append(held_out_loss(reports))
+        return reports
+
+    monkeypatch.setattr("drrl.model_based.fit", fit)
+    model = {**QUICK_MODEL, "fit_updates": 40, "refit_updates": 30, "initial_episodes": 6}
+    config = TrainConfig.model_validate(
+        dict(popsize=10, episodes_per_candidate=2, budget=8, eval_episodes=5, model_based=model)
+    )
+    rows = train(config).rows
+    assert [row["held_out_episodes"] for row in rows] == [1, 1]  # held-out losses to compare (6 and 8 episodes)
+    assert [row["refitted"] for row in rows] == [0, 1]
+    assert calls == [40, 30, 40]
+    assert rows[1]["model_loss"] < inflated[0] / 1000
 
 
 def test_the_overshooting_horizon_shrinks_while_episodes_are_short():

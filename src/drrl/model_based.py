@@ -3,11 +3,13 @@
 One step of the loop (``drrl.loop.run``) is one iteration:
     1. collect real episodes with the current centre policy μ and exploring candidates μ ± ε from the search;
     2. fit the world model(s) to all real episodes so far (``drrl.models.fit``; later fits start from the previous
-       weights);
+       weights, and a later fit whose held-out loss jumps to ``LOSS_JUMP`` times the last one is done again from
+       new weights, the better of the two kept);
     3. run the search inside the model (an ``ImaginedEnv``, made by every backend worker
        from an ``ImaginedWorld``), from real start states, for at most
        ``model_based.generations`` generations of ``drrl.loop.run_generation``, the model-free generation,
-       stopping early once the candidates' mean imagined return stops improving;
+       stopping early once the candidates' mean imagined return stops improving (a generation whose candidates all
+       earn the same imagined return widens σ instead, ``drrl.search.pgpe``);
 then the loop measures μ on fresh real episodes (``eval_episodes``), counted as evaluation, never as training.
 Iterations repeat until the budget of real training episodes is spent. Real steps and episodes are counted exactly
 (by ``drrl.rollout.evaluate``); imagined steps and episodes are counted apart. Every iteration is checkpointed with
@@ -33,7 +35,7 @@ from drrl.envs.batch import RegisteredEnv
 from drrl.envs.registry import EnvEntry
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, action_size
-from drrl.models.fit import FitSettings, fit
+from drrl.models.fit import FitReport, FitSettings, fit
 from drrl.models.imagined import ImaginedWorld
 from drrl.models.recurrent import WorldModel
 from drrl.models.settings import ModelBasedSettings
@@ -42,6 +44,7 @@ from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload, evaluat
 from drrl.search.base import Search
 
 IMAGINING, FITTING = 2, 3  # random streams of imagined episodes and model fitting, apart from training and measuring
+LOSS_JUMP = 4.0  # a fit whose held-out loss exceeds the last iteration's this many times is done again afresh
 
 
 class ModelDiverged(RuntimeError):
@@ -115,6 +118,14 @@ class ModelBased(World):
         reports = fit(self.model, self.buffer, fit_now, seed=derive_seed(config.seed, iteration, FITTING))
         if any(report.stop == "diverged" for report in reports):
             raise ModelDiverged(f"iteration {iteration}: the world model's loss turned non-finite")
+        previous = counters.rows[-1] if counters.rows else {}
+        refitted = bool(  # held-out losses both, not training losses standing in for them
+            reports[0].held_out_episodes
+            and previous.get("held_out_episodes")
+            and held_out_loss(reports) > LOSS_JUMP * previous["model_loss"]
+        )
+        if refitted:
+            reports = self.refit_afresh(reports, iteration)
         # 3. the search inside it, from real start states
         search_start = time.perf_counter()
         imagined = ImaginedWorld.of(
@@ -147,11 +158,33 @@ class ModelBased(World):
             "imagined_center_return": float(in_model.returns[0]),
             "sigma_norm": float(search.spread.norm()),
             "overshoot": fit_now.overshoot,
-            "model_loss": float(np.mean([report.valid_loss for report in reports])),
+            "model_loss": held_out_loss(reports),
+            "held_out_episodes": reports[0].held_out_episodes,
+            "refitted": int(refitted),
             "fit_updates": sum(report.updates for report in reports),
             "fit_time": round(search_start - fit_start, 3),
             "search_time": round(search_end - search_start, 3),
         }
+
+    def refit_afresh(self, reports: list[FitReport], iteration: int) -> list[FitReport]:
+        """Fit a model from new initial weights, as the first fit does, on the same split; keep it if its held-out
+        loss is lower than the warm-started fit's (``reports``). Returns the kept model's reports.
+
+        Beyond the thesis: a warm-started fit can be left far worse on held-out episodes than the model before it
+        (new data the old weights cannot bend to), and a policy searched in that model fails in reality.
+        """
+        seed = derive_seed(self.config.seed, iteration, FITTING)
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            fresh = WorldModel(**self.model.settings()).to(self.model.device)
+        settings = fitting_settings(self.settings.fit_settings(True, self.known_reward is None), self.buffer)
+        fresh_reports = fit(fresh, self.buffer, settings, seed=seed)
+        if any(report.stop == "diverged" for report in fresh_reports) or held_out_loss(fresh_reports) >= held_out_loss(
+            reports
+        ):
+            return reports
+        self.model.load_state_dict(fresh.state_dict())
+        return fresh_reports
 
     def search_in_model(self, search: Search, counters: Counters, iteration: int) -> tuple[int, int]:
         """Generations on imagined episodes, counted in ``counters``; returns how many ran, and in how many every
@@ -198,6 +231,11 @@ class ModelBased(World):
 
     def close(self) -> None:
         self.backend.close()
+
+
+def held_out_loss(reports: list[FitReport]) -> float:
+    """The members' mean loss on their held-out episodes."""
+    return float(np.mean([report.valid_loss for report in reports]))
 
 
 def iteration_sizes(budget: int, settings: ModelBasedSettings) -> list[int]:
