@@ -130,6 +130,22 @@ def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypa
     assert rows[1]["model_loss"] < inflated[0] / 1000
 
 
+def test_optimistic_explorers_are_chosen_in_the_model_and_their_imagined_episodes_counted():
+    """With an exploration bonus every later iteration imagines one episode for each of popsize candidates and
+    sends the best (imagined return + bonus × disagreement) to reality; without it, the explorers are not chosen."""
+    rows = {}
+    for bonus in (0.0, 1.0):
+        model = {**QUICK_MODEL, "ensemble_size": 2, "exploration_bonus": bonus}
+        config = TrainConfig.model_validate(
+            dict(popsize=10, episodes_per_candidate=2, budget=6, eval_episodes=5, model_based=model)
+        )
+        rows[bonus] = train(config).rows
+    for plain, optimistic in zip(rows[0.0], rows[1.0], strict=True):
+        spent = optimistic["imagined_episodes"] - plain["imagined_episodes"]
+        assert spent == 10 * (optimistic["iteration"] - 1)  # 10 candidates imagined in iterations 2 and 3
+        assert optimistic["real_episodes"] == plain["real_episodes"]
+
+
 def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
     short = EpisodeBuffer(
         [Episode(np.zeros((9, 4), np.float32), np.zeros((8, 1), np.float32), np.zeros(8, np.float32), True)]
@@ -147,6 +163,7 @@ def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
         ({"ensemble_size": 0}, "model_based.ensemble_size"),
         ({"reward": "guess"}, "model_based.reward: 'guess' is not one of: auto, known, learned"),
         ({"unknown": 1}, "model_based.unknown: not a setting; the settings are: initial_episodes"),
+        ({"exploration_bonus": 1.0}, "exploration_bonus rewards the ensemble's disagreement, which needs ensemble"),
     ],
 )
 def test_model_based_settings_are_validated_with_field_value_and_choices(model_based, message):

@@ -43,7 +43,8 @@ from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload, evaluate
 from drrl.search.base import Search
 
-IMAGINING, FITTING = 2, 3  # random streams of imagined episodes and model fitting, apart from training and measuring
+# random streams of imagined episodes, model fitting and choosing explorers, apart from training and measuring
+IMAGINING, FITTING, EXPLORING = 2, 3, 4
 LOSS_JUMP = 4.0  # a fit whose held-out loss exceeds the last iteration's this many times is done again afresh
 
 
@@ -105,7 +106,10 @@ class ModelBased(World):
         config, search = self.config, setup.search
         assert isinstance(search, Search)
         # 1. real episodes: the centre and explorers (only explorers before the model has informed μ)
-        params = exploring_policies(search, self.sizes[iteration - 1], with_center=iteration > 1)
+        count = self.sizes[iteration - 1]
+        params = exploring_policies(search, count, with_center=iteration > 1)
+        if self.settings.exploration_bonus and iteration > 1:
+            params = torch.cat([params[:1], self.optimistic_explorers(search, count - 1, counters, iteration)])
         episodes, real = collect(
             self.policy, params, self.real, derive_seed(config.seed, iteration, TRAINING), config.max_steps
         )
@@ -165,6 +169,30 @@ class ModelBased(World):
             "fit_time": round(search_start - fit_start, 3),
             "search_time": round(search_end - search_start, 3),
         }
+
+    def optimistic_explorers(self, search: Search, count: int, counters: Counters, iteration: int) -> torch.Tensor:
+        """Of the search's candidates μ ± ε, the ``count`` whose imagined episode earns the most reward plus
+        ``exploration_bonus`` × the members' disagreement along the way (every candidate from the same real start):
+        real episodes go where the model expects much or knows little, which is where they teach it most.
+
+        Beyond the thesis, which explores with random μ ± ε; the bonus is the ensemble's own uncertainty, the
+        optimism in the face of uncertainty of model-based exploration (e.g. PETS-style ensembles).
+        """
+        candidates = search.ask()
+        imagined = ImaginedWorld.of(
+            self.model,
+            self.buffer.start_observations(),
+            self.action_space,
+            self.horizon,
+            self.known_reward,
+            -self.settings.exploration_bonus,  # a negative penalty: disagreement earns reward
+        )
+        env = imagined.make(len(candidates))
+        seed = derive_seed(self.config.seed, iteration, EXPLORING)
+        evaluation = evaluate(self.policy, candidates, env, 1, seed=seed, max_steps=self.config.max_steps)
+        counters.imagined_episodes += evaluation.episodes
+        counters.imagined_steps += evaluation.steps
+        return candidates[torch.argsort(evaluation.returns, descending=True, stable=True)[:count]]
 
     def refit_afresh(self, reports: list[FitReport], iteration: int) -> list[FitReport]:
         """Fit a model from new initial weights, as the first fit does, on the same split; keep it if its held-out

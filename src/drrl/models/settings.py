@@ -9,7 +9,7 @@ iteration. ``MODEL_BASED_DEFAULTS`` are the ``TrainConfig`` values a model-based
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
 from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS
@@ -63,6 +63,12 @@ class ModelBasedSettings(BaseModel):
     future_inputs: str = "predictions"
     reward: str = "auto"
     disagreement_penalty: float = Field(0.0, ge=0)
+    exploration_bonus: float = Field(
+        0.0,
+        ge=0,
+        description="0: real explorers are random candidates μ ± ε; above 0: the candidates with the highest "
+        "imagined return plus this times the ensemble's disagreement (needs ensemble_size ≥ 2)",
+    )
     model_optimizer: str = "adam_lambda"
     model_lr: float = Field(1e-2, gt=0, le=1e3)
     fit_batch_size: int = Field(128, ge=1, le=1_000_000)
@@ -92,6 +98,15 @@ class ModelBasedSettings(BaseModel):
         if min(value) < 1 or max(value) > MAX_WIDTH:
             raise ValueError(f"every layer width must be in [1, {MAX_WIDTH}], got {value}")
         return value
+
+    @model_validator(mode="after")
+    def _bonus_needs_an_ensemble(self) -> ModelBasedSettings:
+        if self.exploration_bonus and self.ensemble_size < 2:
+            raise ValueError(
+                "exploration_bonus rewards the ensemble's disagreement, which needs ensemble_size ≥ 2 "
+                f"(got {self.ensemble_size}); raise ensemble_size or set exploration_bonus to 0"
+            )
+        return self
 
     def fit_settings(self, first: bool, learn_reward: bool) -> FitSettings:
         """How to fit the model in the first iteration (``first``) or a later one."""
