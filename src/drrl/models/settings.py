@@ -15,7 +15,7 @@ from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
 from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS
 
 REWARD_MODES = ("auto", "known", "learned")
-VALIDATE_EVERY = 50  # gradient steps between two measurements of a fit's held-out loss
+VALIDATE_EVERY = 100  # gradient steps between two measurements of a fit's held-out loss
 MAX_WIDTH = 65_536  # units in a layer: wider is a typo, and would not fit in memory with its neighbours
 CHOICES = {
     "model_kind": MODEL_KINDS,
@@ -80,7 +80,7 @@ class ModelBasedSettings(BaseModel):
         description="most gradient steps of every later fit, which starts from the previous model's weights",
     )
     fit_patience: int = Field(
-        2,
+        5,
         ge=1,
         le=1_000_000,
         description=f"stop a fit once its held-out loss has not improved over this many validations, one every "
