@@ -5,7 +5,7 @@ Every iteration measures the centre policy on 50 fresh real episodes (counted ap
 per seed, then medians over seeds; a seed that never gets there counts as worse than any that does.
 
     python benchmarks/model_based.py --seeds 10
-    python benchmarks/model_based.py --config configs/cartpole-swingup-model-based.toml --seeds 10
+    python benchmarks/model_based.py --env cartpole-swingup --seeds 10
     python benchmarks/model_based.py --seeds 1 --quality model_quality.png
 """
 
@@ -37,10 +37,10 @@ def main() -> None:
         help="TOML or JSON file of settings, as `drrl train --config` reads (the options below override it)",
     )
     parser.add_argument("--env", help="[default: cartpole]")
-    parser.add_argument("--policy", help="[default: linear:nobias]")
+    parser.add_argument("--policy", help="[default: the env's model-based default]")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--budget", type=int, help="real training episodes [default: 20]")
+    parser.add_argument("--budget", type=int, help="real training episodes [default: the env's model-based default]")
     parser.add_argument("--model-based", default="{}", help="JSON of ModelBasedSettings fields to change")
     parser.add_argument("--search", default="{}", help="JSON of TrainConfig fields to change")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (tiny matrices: 1 is fastest)")
@@ -50,8 +50,6 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     settings = {
         "env": "cartpole",
-        "policy": "linear:nobias",
-        "budget": 20,
         **(load_config_file(args.config) if args.config else {}),
         **{name: value for name in ("env", "policy", "budget") if (value := getattr(args, name)) is not None},
         **json.loads(args.search),
