@@ -392,6 +392,16 @@ def test_compare_without_stable_baselines3_says_what_to_install(tmp_path, monkey
     assert not (tmp_path / "cmp").exists()
 
 
+@pytest.mark.parametrize(("env", "budgets"), [("cartpole", (300, 20)), ("cartpole-swingup", (40_000, 30))])
+def test_compare_spends_the_envs_own_budgets_unless_told(env, budgets, tmp_path, monkeypatch):
+    asked = []
+    monkeypatch.setattr("drrl.cli_model_based.compare", lambda out, seeds, *budget_args, **_: asked.append(budget_args))
+    for extra, expected in (([], budgets), (["--budget", "400", "--model-based-budget", "4"], (400, 4))):
+        result = CliRunner().invoke(main, ["compare", "--env", env, "--out", str(tmp_path), *extra])
+        assert result.exit_code == 0, result.output
+        assert asked.pop()[:2] == expected
+
+
 def test_compare_averages_seeds_on_a_common_grid_of_real_episodes(tmp_path, monkeypatch):
     import drrl.compare as module
 

@@ -14,8 +14,11 @@ from pydantic import ValidationError
 from drrl.cli_params import INTEGER
 from drrl.compare import DEFAULT_METHODS, METHODS, MODEL_BASED, PPO, compare, method_config
 from drrl.config import describe_errors, load_config_file
+from drrl.envs.registry import own_entry
 from drrl.models.recurrent import MODEL_KINDS
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
+
+COMPARE_BUDGET = 300  # real episodes of a model-free run in a comparison: enough for the cart-pole's PGPE to balance
 
 # option name -> ModelBasedSettings field
 MODEL_OPTIONS = {
@@ -103,16 +106,14 @@ def with_model_based(settings: dict, model_based: bool, model_options: dict) -> 
 @click.option(
     "--budget",
     type=click.IntRange(min=1),
-    default=300,
-    show_default=True,
-    help="real training episodes of each model-free run (PGPE, REINFORCE, eNAC, PPO)",
+    help="real training episodes of each model-free run (PGPE, REINFORCE, eNAC, PPO)  "
+    f"[default: {COMPARE_BUDGET}, or the env's own budget where it has one]",
 )
 @click.option(
     "--model-based-budget",
     type=click.IntRange(min=1),
-    default=20,
-    show_default=True,
-    help="real training episodes of each model-based run",
+    help="real training episodes of each model-based run  "
+    f"[default: {MODEL_BASED_DEFAULTS['budget']}, or the env's own model-based budget]",
 )
 @click.option(
     "--method",
@@ -143,6 +144,12 @@ def compare_command(env, seeds, budget, model_based_budget, methods, config_file
     except ValueError as error:
         raise click.UsageError(str(error)) from None
     settings["env"] = env
+    entry = own_entry(env)
+    if budget is None:
+        budget = entry.defaults.get("budget", COMPARE_BUDGET) if entry else COMPARE_BUDGET
+    if model_based_budget is None:
+        own = entry.model_based_defaults if entry else {}
+        model_based_budget = own.get("budget", MODEL_BASED_DEFAULTS["budget"])
     methods = methods or DEFAULT_METHODS
     try:  # every method's config is checked before any run starts
         for method in methods:
