@@ -207,9 +207,8 @@ class ModelBased(World):
             fresh = WorldModel(**self.model.settings()).to(self.model.device)
         settings = fitting_settings(self.settings.fit_settings(True, self.known_reward is None), self.buffer)
         fresh_reports = fit(fresh, self.buffer, settings, seed=seed)
-        if any(report.stop == "diverged" for report in fresh_reports) or held_out_loss(fresh_reports) >= held_out_loss(
-            reports
-        ):
+        worse = held_out_loss(fresh_reports) >= held_out_loss(reports)
+        if worse or any(report.stop == "diverged" for report in fresh_reports):
             return reports
         self.model.load_state_dict(fresh.state_dict())
         return fresh_reports
