@@ -132,14 +132,7 @@ class ModelBased(World):
             reports = self.refit_afresh(reports, iteration)
         # 3. the search inside it, from real start states
         search_start = time.perf_counter()
-        imagined = ImaginedWorld.of(
-            self.model,
-            self.buffer.start_observations(),
-            self.action_space,
-            self.horizon,
-            self.known_reward,
-            self.settings.disagreement_penalty,
-        )
+        imagined = self.imagined_world(self.settings.disagreement_penalty)
         self.backend.use(
             Workload(self.policy, imagined, config.popsize, config.episodes_per_candidate, config.max_steps)
         )
@@ -179,20 +172,23 @@ class ModelBased(World):
         optimism in the face of uncertainty of model-based exploration (e.g. PETS-style ensembles).
         """
         candidates = search.ask()
-        imagined = ImaginedWorld.of(
-            self.model,
-            self.buffer.start_observations(),
-            self.action_space,
-            self.horizon,
-            self.known_reward,
-            -self.settings.exploration_bonus,  # a negative penalty: disagreement earns reward
-        )
-        env = imagined.make(len(candidates))
+        env = self.imagined_world(-self.settings.exploration_bonus).make(len(candidates))  # disagreement earns
         seed = derive_seed(self.config.seed, iteration, EXPLORING)
         evaluation = evaluate(self.policy, candidates, env, 1, seed=seed, max_steps=self.config.max_steps)
         counters.imagined_episodes += evaluation.episodes
         counters.imagined_steps += evaluation.steps
         return candidates[torch.argsort(evaluation.returns, descending=True, stable=True)[:count]]
+
+    def imagined_world(self, disagreement_penalty: float) -> ImaginedWorld:
+        """The current model as imagined episodes from the real start states so far."""
+        return ImaginedWorld.of(
+            self.model,
+            self.buffer.start_observations(),
+            self.action_space,
+            self.horizon,
+            self.known_reward,
+            disagreement_penalty,
+        )
 
     def refit_afresh(self, reports: list[FitReport], iteration: int) -> list[FitReport]:
         """Fit a model from new initial weights, as the first fit does, on the same split; keep it if its held-out
