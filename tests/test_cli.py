@@ -244,7 +244,9 @@ def test_the_drrl_command_is_installed():
 
 
 def test_eval_explains_each_tasks_own_verdict(tmp_path):
-    result, out = train(tmp_path, "cartpole-swingup", "--budget", "16", "--eval-episodes", "4", "--quiet")
+    result, out = train(
+        tmp_path, "cartpole-swingup", "--budget", "16", "--popsize", "8", "--eval-episodes", "4", "--quiet"
+    )
     assert result.exit_code == 0, result.output
     evaluated = CliRunner().invoke(main, ["eval", str(out), "--episodes", "4"])
     assert evaluated.exit_code == 0, evaluated.output
