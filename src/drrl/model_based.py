@@ -198,9 +198,7 @@ class ModelBased(World):
         (new data the old weights cannot bend to), and a policy searched in that model fails in reality.
         """
         seed = derive_seed(self.config.seed, iteration, FITTING)
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(seed)
-            fresh = WorldModel(**self.model.settings()).to(self.model.device)
+        fresh = seeded_model(seed, **self.model.settings()).to(self.model.device)
         settings = fitting_settings(self.settings.fit_settings(True, self.known_reward is None), self.buffer)
         fresh_reports = fit(fresh, self.buffer, settings, seed=seed)
         worse = held_out_loss(fresh_reports) >= held_out_loss(reports)
@@ -270,17 +268,22 @@ def iteration_sizes(budget: int, settings: ModelBasedSettings) -> list[int]:
 
 def build_model(settings: ModelBasedSettings, env: VectorEnv, seed: int) -> WorldModel:
     """The ensemble of world models ``settings`` describes, for ``env``'s observation and action sizes."""
-    observation_size = int(np.prod(env.single_observation_space.shape or ()))
-    with torch.random.fork_rng():  # the members' initial weights, without touching the global generator
+    return seeded_model(
+        seed,
+        observation_size=int(np.prod(env.single_observation_space.shape or ())),
+        action_size=action_size(env.single_action_space),
+        hidden=settings.hidden,
+        kind=settings.model_kind,
+        future_inputs=settings.future_inputs,
+        members=settings.ensemble_size,
+    )
+
+
+def seeded_model(seed: int, **model_settings) -> WorldModel:
+    """``WorldModel(**model_settings)`` with initial weights drawn from ``seed``, the global generator untouched."""
+    with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        return WorldModel(
-            observation_size,
-            action_size(env.single_action_space),
-            settings.hidden,
-            settings.model_kind,
-            settings.future_inputs,
-            members=settings.ensemble_size,
-        )
+        return WorldModel(**model_settings)
 
 
 def episode_horizon(env_id: str, env: VectorEnv) -> int:

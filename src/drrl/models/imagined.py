@@ -198,7 +198,7 @@ class ImaginedEnv(VectorEnv):
     def _restart(self, envs: np.ndarray) -> None:
         """New episodes in ``envs`` from fresh real starts; each keeps its env's member, so the layout stays (were
         members drawn again, those whose episodes end late would gather ever more envs)."""
-        starts, _members = self._draw(self._rng, len(envs))
+        starts, _members = self._draw(self._rng, len(envs))  # members drawn and unused: the starts' stream stays
         index = torch.as_tensor(envs, device=self.device)
         assert self._observation is not None  # restarts follow a reset
         # out of place: the observations handed out by the previous step must not change
