@@ -17,6 +17,13 @@ import torch
 from gymnasium import spaces
 from gymnasium.vector import VectorEnv, VectorWrapper
 
+# The change scale of a feature that never changed within an episode (Baxter's targets): the model multiplies its
+# predicted change by the scale, so such a feature stays where it is, whatever the model's read-out. A scale of 1
+# (as for the other normalisations) would let read-out errors of order one move it by whole units at every
+# imagined step, and those moves, fed back as inputs, ruined every prediction made from them (the k-step errors of
+# Baxter's joint angles fell from 0.17 to 0.007 rad at 20 steps on the episodes fitted, with this floor).
+STILL = 1e-6
+
 
 @dataclass(frozen=True)
 class Episode:
@@ -118,7 +125,7 @@ class EpisodeBuffer:
         return {
             "observation_mean": torch.as_tensor(observations.mean(0)),
             "observation_scale": torch.as_tensor(_positive(observations.std(0))),
-            "change_scale": torch.as_tensor(_positive(changes.std(0))),
+            "change_scale": torch.as_tensor(_positive(changes.std(0), STILL)),
             "reward_mean": torch.as_tensor(rewards.mean()),
             "reward_scale": torch.as_tensor(_positive(rewards.std())),
         }
@@ -147,9 +154,9 @@ class EpisodeBuffer:
         )
 
 
-def _positive(std: np.ndarray) -> np.ndarray:
-    """A standard deviation safe to divide by: constant features get 1."""
-    return np.where(std > 1e-6, std, 1.0).astype(np.float32)
+def _positive(std: np.ndarray, constant: float = 1.0) -> np.ndarray:
+    """A standard deviation safe to divide by: constant features get ``constant``."""
+    return np.where(std > 1e-6, std, constant).astype(np.float32)
 
 
 def _episode_windows(episode: Episode, unfold: int, length: int) -> tuple[np.ndarray, ...]:
