@@ -14,6 +14,7 @@ from gymnasium.utils.env_checker import check_env
 
 from drrl.config import TrainConfig
 from drrl.envs.baxter.env import BaxterReachEnv, BaxterReachVectorEnv
+from drrl.envs.baxter.kinematics import arm_points
 from drrl.envs.baxter.model import ARM, SIDES, baxter_xml, import_mujoco, load_model, neutral_pose
 from drrl.envs.baxter.simulation import BaxterBatch
 from drrl.envs.baxter.standin import Actuation, StandIn
@@ -85,6 +86,21 @@ def test_end_points_match_the_denavit_hartenberg_table_within_a_millimetre():
         for k, side in enumerate(SIDES):
             simulated = data.site(f"{side}_end_point").xpos
             np.testing.assert_allclose(simulated, dh_end_point(q[7 * k : 7 * k + 7], side), atol=1e-3, rtol=0)
+
+
+def test_closed_form_kinematics_put_every_point_where_mujoco_does():
+    model = load_model(SIDES)
+    data = mujoco.MjData(model)
+    q = np.random.default_rng(1).uniform(np.tile(LOW, 2), np.tile(HIGH, 2), (30, 14))
+    for k, side in enumerate(SIDES):
+        points = arm_points(q[:, 7 * k : 7 * k + 7], side)
+        for row, angles in enumerate(q):
+            data.qpos[:] = angles
+            mujoco.mj_kinematics(model, data)
+            bodies = [data.body(f"{side}_{name}").xpos for name in ("e1", "w1", "hand")]
+            expected = np.stack([*bodies, data.site(f"{side}_end_point").xpos])
+            np.testing.assert_allclose(points[row], expected, atol=1e-6, rtol=0)
+        np.testing.assert_allclose(points[0, 3], dh_end_point(q[0, 7 * k : 7 * k + 7], side), atol=1e-3, rtol=0)
 
 
 def test_model_has_the_urdf_limits_masses_and_actuators():
@@ -235,6 +251,47 @@ def test_touching_the_table_fails_the_episode():
     assert terminated[0] and not truncated[0] and 1 < t < 60
     assert reward[0] == -2.0 * (2000 - t)
     assert env.sim.in_contact[0] and not env.task.at_limit(env.sim.qpos)[0]
+
+
+def test_the_closed_form_table_rule_fails_within_a_few_steps_of_the_real_contact():
+    env = BaxterReachVectorEnv(1, arms=("right",))
+    env.reset(seed=0)
+    over_the_table = neutral_pose("right")
+    over_the_table[[0, 1, 3, 5]] = 0.6, 0.3, 0.0, 0.0
+    env.sim.restart(np.arange(1), over_the_table[None], env.sim.targets.copy())
+    down = np.zeros((1, 7))
+    down[0, 3] = 1.5
+    closed_form = []
+    for _ in range(100):
+        observation, _, terminated, _, _ = env.step(down)
+        closed_form.append(env.task.observed_reward(observation, np.ones(1))[1][0])
+        if terminated[0]:
+            break
+    assert len(closed_form) > 10 and closed_form[-1]
+    assert not any(closed_form[:-5])  # not long before the real contact either
+
+
+def test_closed_form_reward_and_offsets_match_the_simulation_until_a_contact():
+    env = BaxterReachVectorEnv(64, arms=SIDES)
+    observation, _ = env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    weights = 0.3 * rng.standard_normal((observation.shape[1], 14))
+    compared = 0
+    for _ in range(300):
+        actions = np.tanh(observation @ weights) * np.tile(MAX_VELOCITY, 2)
+        before, previous = env.elapsed_steps.copy(), observation
+        observation, reward, terminated, _, _ = env.step(actions)
+        stepped = before + 1 == env.elapsed_steps  # not an autoreset
+        np.testing.assert_allclose(
+            env.task.complete_observation(previous, observation)[stepped], observation[stepped], atol=1e-5, rtol=0
+        )
+        closed_reward, closed_end = env.task.observed_reward(observation, env.elapsed_steps)
+        real_contact = env.sim.in_contact & ~env.task.at_limit(env.sim.qpos)
+        same = stepped & ~real_contact  # contacts with the body or the other arm need link shapes
+        np.testing.assert_array_equal(closed_reward[same & ~closed_end], reward[same & ~closed_end])
+        np.testing.assert_array_equal(closed_end[same & terminated], True)
+        compared += int(same.sum())
+    assert compared > 10_000
 
 
 def test_running_into_a_joint_limit_fails_the_episode():

@@ -10,6 +10,7 @@ from drrl.envs.cartpole import BalanceTask, PartiallyObservedTask, SwingUpTask
 from drrl.envs.registry import lookup
 from drrl.models import Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv, WorldModel
 from drrl.models import fit as fit_module
+from drrl.models.data import STILL
 from drrl.models.fit import clip_member_gradients, fit
 from drrl.models.quality import k_step_errors, model_quality_report
 from drrl.models.recurrent import MODEL_KINDS
@@ -153,6 +154,32 @@ def test_the_model_learns_a_known_linear_system(kind):
     errors = k_step_errors(model, held_out, 10)  # in units of the per-step change
     assert report.stop == "max_updates" and report.valid_loss < 1.0
     assert errors[0] < 0.3 and errors[-1] < 0.5 and errors[-1] < untrained[-1] / 10
+
+
+def test_a_feature_constant_within_each_episode_stays_put_in_imagination():
+    """Like Baxter's targets: the same through an episode, different between episodes. Its change scale is STILL, so
+    a model's read-out, trained or not, cannot move it."""
+    rng = np.random.default_rng(0)
+    episodes = [
+        Episode(
+            np.concatenate([e.observations, np.full((len(e) + 1, 1), rng.uniform(-1, 1), np.float32)], axis=1),
+            e.actions,
+            e.rewards,
+            False,
+        )
+        for e in linear_system_episodes(6, 30, seed=3)
+    ]
+    buffer = EpisodeBuffer(episodes)
+    scales = buffer.scales()
+    assert scales["change_scale"][2] == STILL and scales["observation_scale"][2] > 0.1
+    assert (scales["change_scale"][:2] > 0.01).all()
+    model = WorldModel(3, 1, (16,))
+    model.set_scales(scales)
+    windows = buffer.windows(1, 19)
+    with torch.no_grad():
+        predicted = model.unfold(windows.observations, windows.actions, observed_steps=1).observations
+    drift = (predicted[0, :, :, 2] - windows.observations[:, :1, 2]).abs().max()
+    assert drift < 20 * STILL * 10  # 20 steps of read-outs of order one (untrained: |y| < 10)
 
 
 @pytest.mark.parametrize(("episodes", "stop"), [(10, "patience"), (4, "max_updates")])
@@ -309,6 +336,27 @@ def test_the_imagined_env_is_a_vector_env_that_evaluate_runs_unchanged():
     torch.testing.assert_close(first.episode_returns, again.episode_returns)
     assert first.steps <= 12 * 20 and first.episodes == 12
     assert (first.episode_returns <= 0).all()  # the thesis's reward 5.8 is never positive
+
+
+def test_imagined_observations_are_completed_before_the_reward_and_the_policy_read_them():
+    def complete(previous, predicted):  # entry 0 counts the steps, whatever the model predicts
+        completed = predicted.copy()
+        completed[:, 0] = previous[:, 0] + 1
+        return completed
+
+    seen = []
+
+    def reward(observations, steps):
+        seen.append(observations[:, 0].copy())
+        return np.zeros(len(observations)), np.zeros(len(observations), dtype=bool)
+
+    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    env = ImaginedEnv(WorldModel(4, 1, (8,)), cartpole_starts(), 3, action_space, 10, reward, 0.0, complete)
+    first, _ = env.reset(seed=[1, 2, 3])
+    for step in range(1, 4):
+        observations = env.step(np.zeros((3, 1), np.float32))[0]
+        np.testing.assert_allclose(observations[:, 0], first[:, 0] + step, rtol=1e-6)
+        np.testing.assert_array_equal(seen[-1], observations[:, 0])
 
 
 def test_the_imagined_env_can_use_the_models_own_reward_and_penalise_disagreement():

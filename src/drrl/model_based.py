@@ -81,7 +81,9 @@ class ModelBased(World):
         self.action_space = eval_env.single_action_space
         self.model = build_model(settings, eval_env, config.seed).to(config.device)
         self.horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
-        self.known_reward = entry.reward if settings.reward in ("auto", "known") else None
+        known = settings.reward in ("auto", "known")
+        self.known_reward = entry.reward if known else None
+        self.complete_observation = entry.complete_observation if known else None
         self.buffer = EpisodeBuffer()
         self.sizes = iteration_sizes(config.budget, settings)
 
@@ -188,6 +190,7 @@ class ModelBased(World):
             self.horizon,
             self.known_reward,
             disagreement_penalty,
+            self.complete_observation,
         )
 
     def refit_afresh(self, reports: list[FitReport], iteration: int) -> list[FitReport]:

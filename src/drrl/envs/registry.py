@@ -2,7 +2,8 @@
 
 An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what "solved" means) and how
 ``drrl eval`` explains it, the task's reward and end in closed form of the observation when there is one (imagined
-episodes then use it instead of a learned reward), and settings that suit the task. Each environment registers its
+episodes then use it instead of a learned reward) and the observation entries that follow in closed form from the
+others (imagined observations are completed by it), and settings that suit the task. Each environment registers its
 entry from its own module (``register``), which also registers it with Gymnasium. An environment that drrl
 does not know is any registered Gymnasium id; its entry has the verdict "solved" where Gymnasium gives the task a
 ``reward_threshold`` or the field a usual level (a mean return at or above it), and settings that reach it where
@@ -28,6 +29,9 @@ Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
 Explanation = Callable[[torch.Tensor, torch.Tensor], str]
 # (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,))
 RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+# (observations (N, o), predicted next observations (N, o)) -> the next ones with the entries that follow from the
+# rest recomputed
+ObservationFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -39,6 +43,7 @@ class EnvEntry:
     verdict: Verdict | None = None
     explain: Explanation | None = None
     reward: RewardFunction | None = None
+    complete_observation: ObservationFunction | None = None  # e.g. Baxter's end-point offsets from its joint angles
     suggested: dict = field(default_factory=dict)  # TrainConfig settings that suit the task
     defaults: dict = field(default_factory=dict)  # TrainConfig settings a model-free run on the task starts from
     model_based_defaults: dict = field(default_factory=dict)  # the same for a model-based run, with its table

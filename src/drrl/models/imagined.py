@@ -5,8 +5,10 @@ drawn at reset (an episode restarted later keeps its env's member), and then liv
 current (predicted) observation and the policy's action to the model, which is dynamical consistency (3.3.3) at
 imagination time. Rewards and ends come either from the task's reward in closed form applied to the predicted
 observations (``known_reward``, e.g. the thesis's 5.8, from drrl's environment registry) or from the model's reward
-and end heads. Nothing here touches the real environment: imagined steps cost no real samples, and the training loop
-counts them apart.
+and end heads. Where some observation entries follow in closed form from the others (``complete_observation``, e.g.
+Baxter's end-point offsets from its joint angles), each prediction is completed by it before anything reads it.
+Nothing here touches the real environment: imagined steps cost no real samples, and the training loop counts them
+apart.
 
 Episode seeds (``reset(seed=[...])``, one per sub-environment) fix each episode's start and member, so candidates of
 one PGPE generation are compared on the same imagined starts, as they are on real ones.
@@ -34,6 +36,9 @@ from drrl.models.data import model_actions
 # (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,)): a task's reward in closed form,
 # as drrl's environment registry holds it (drrl.envs.registry.EnvEntry.reward)
 RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+# (observations (N, o), predicted next observations (N, o)) -> the next ones with the entries that follow from the
+# rest recomputed (EnvEntry.complete_observation)
+ObservationFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -50,6 +55,7 @@ class ImaginedWorld:
     horizon: int
     known_reward: RewardFunction | None = None
     disagreement_penalty: float = 0.0
+    complete_observation: ObservationFunction | None = None
 
     @classmethod
     def of(
@@ -60,6 +66,7 @@ class ImaginedWorld:
         horizon: int,
         known_reward: RewardFunction | None = None,
         disagreement_penalty: float = 0.0,
+        complete_observation: ObservationFunction | None = None,
     ) -> ImaginedWorld:
         state = {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
         return cls(
@@ -71,6 +78,7 @@ class ImaginedWorld:
             horizon,
             known_reward,
             disagreement_penalty,
+            complete_observation,
         )
 
     def make(self, num_envs: int) -> ImaginedEnv:
@@ -85,6 +93,7 @@ class ImaginedWorld:
             self.horizon,
             self.known_reward,
             self.disagreement_penalty,
+            self.complete_observation,
         )
 
 
@@ -98,6 +107,7 @@ class ImaginedEnv(VectorEnv):
         horizon: steps after which an imagined episode is truncated (the real task's).
         known_reward: reward and end in closed form; None to use the model's own heads (end when p̂ > 0.5).
         disagreement_penalty: λ in r ← r − λ · disagreement (``model.disagreement``), 0 for none.
+        complete_observation: recomputes the observation entries that follow from the others; None for none.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
@@ -111,6 +121,7 @@ class ImaginedEnv(VectorEnv):
         horizon: int,
         known_reward: RewardFunction | None = None,
         disagreement_penalty: float = 0.0,
+        complete_observation: ObservationFunction | None = None,
     ):
         starts = np.asarray(start_observations, dtype=np.float32)
         if starts.ndim != 2 or len(starts) == 0:
@@ -120,6 +131,7 @@ class ImaginedEnv(VectorEnv):
         self.horizon = horizon
         self.known_reward = known_reward
         self.disagreement_penalty = disagreement_penalty
+        self.complete_observation = complete_observation
         self.device = model.device
         self._starts = torch.as_tensor(starts, device=self.device)
         bound = np.finfo(np.float32).max
@@ -173,7 +185,10 @@ class ImaginedEnv(VectorEnv):
             self._grouped(self._observation), self._grouped(action), self._state, self._grouped(self._observed)
         )
         own = (self._member, self._position)  # each env's prediction by its own member
-        self._observation = prediction.observations[own]
+        previous, self._observation = self._observation, prediction.observations[own]
+        if self.complete_observation is not None:
+            completed = self.complete_observation(previous.cpu().numpy(), self._observation.cpu().numpy())
+            self._observation = torch.as_tensor(completed, dtype=previous.dtype, device=self.device)
         self.elapsed_steps += 1
         if self.known_reward is not None:
             reward, terminated = self.known_reward(self._observation.cpu().numpy(), self.elapsed_steps)

@@ -32,8 +32,9 @@ MODEL_BASED_DEFAULTS = {"popsize": 20, "episodes_per_candidate": 10, "budget": 2
 class ModelBasedSettings(BaseModel):
     """The world model, its fitting, and the data loop around PGPE.
 
-    reward: "known" (the task's reward in closed form on predicted observations), "learned" (the model's reward
-    and end heads) or "auto": known where drrl knows it (the env's ``EnvEntry.reward``), learned
+    reward: "known" (the task's reward in closed form on predicted observations, first completed by the entries that
+    follow in closed form from the others where the task has such, ``EnvEntry.complete_observation``), "learned"
+    (the model's reward and end heads) or "auto": known where drrl knows it (the env's ``EnvEntry.reward``), learned
     elsewhere. Known is the default where possible because the thesis's 5.8 is discontinuous in the state (0
     inside |s|, |θ| ≤ 0.05, −1 outside) and depends on the step t, which the model does not observe: a learned head
     could only blur it, while the closed form is exact and free.

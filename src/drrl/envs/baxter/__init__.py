@@ -17,7 +17,7 @@ task options (``controller``, ``reward``, ``action_noise``, ``fixed_target``, ..
 from typing import Any
 
 from drrl.envs.baxter.model import SIDES
-from drrl.envs.baxter.task import explain_reach, reach_verdict
+from drrl.envs.baxter.task import ReachTask, explain_reach, reach_verdict
 from drrl.envs.registry import EnvEntry, register
 
 ENVIRONMENTS: dict[
@@ -40,8 +40,15 @@ ENVIRONMENTS: dict[
 
 for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
     _judged: dict[str, Any] = {"verdict": reach_verdict, "explain": explain_reach} if _thesis_reward else {}
+    _task = ReachTask(**{name: value for name, value in _options.items() if name != "stand_in"})
     register(
-        EnvEntry(_env_id, _alias, **_judged),
+        EnvEntry(
+            _env_id,
+            _alias,
+            reward=_task.observed_reward,
+            complete_observation=_task.complete_observation,
+            **_judged,
+        ),
         "drrl.envs.baxter.env:BaxterReachEnv",
         "drrl.envs.baxter.env:BaxterReachVectorEnv",
         _options,

@@ -39,7 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from drrl.envs.baxter.model import ARM, SIDES, TABLE_TOP, neutral_pose
+from drrl.envs.baxter.kinematics import POINT_RADII, arm_points
+from drrl.envs.baxter.model import ARM, SIDES, TABLE, TABLE_TOP, neutral_pose
 
 CONTROL_PERIOD = 0.01  # seconds per action: 5 physics steps of 0.002 s
 HORIZON = 2000  # control steps (thesis 5.10)
@@ -201,6 +202,50 @@ class ReachTask:
         if failed.any():
             reward = np.where(failed, -2.0 * (self.horizon - np.asarray(step)), reward)
         return reward, failed.copy()
+
+    # -------------------------------------------------- the task in closed form of an observation (imagined episodes)
+
+    def observed_angles(self, observations: np.ndarray) -> np.ndarray:
+        """The joint angles (n, joints) in observations (n, observation_size)."""
+        return np.asarray(observations[:, : self.num_joints], dtype=np.float64)
+
+    def observed_targets(self, observations: np.ndarray) -> np.ndarray:
+        """The targets (n, arms, 3) in observations (n, observation_size)."""
+        start, arms = 2 * self.num_joints, len(self.arms)
+        return np.asarray(observations[:, start : start + 3 * arms], dtype=np.float64).reshape(-1, arms, 3)
+
+    def complete_observation(self, previous: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+        """Predicted next observations (n, observation_size) with what follows from the rest: the targets of the
+        previous observations (they stay put through an episode) and the end-point-to-target offsets through forward
+        kinematics of the predicted joint angles. A world model that predicts every entry should have predicted
+        these; taking them in closed form leaves it only the joints' dynamics to get right."""
+        completed = np.array(predicted, dtype=np.float32)
+        start, end = 2 * self.num_joints, 2 * self.num_joints + 3 * len(self.arms)
+        completed[:, start:end] = previous[:, start:end]
+        offsets = self.observed_targets(completed) - self.arm_points(self.observed_angles(completed))[:, :, 3]
+        completed[:, end:] = offsets.reshape(len(completed), -1) / OFFSET_UNIT
+        return completed
+
+    def observed_reward(self, observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Reward and end (n,) of the transitions into ``observations`` at 1-based ``steps``, in closed form: the
+        distances through forward kinematics, failure when a joint is at its limit or the arm reaches into the table
+        (``touches_table``). Contacts with the body or the other arm are not checked: they need the link shapes."""
+        angles = self.observed_angles(observations)
+        points = self.arm_points(angles)
+        distances = np.linalg.norm(self.observed_targets(observations) - points[:, :, 3], axis=2)
+        return self.rewards(distances, self.at_limit(angles) | touches_table(points), steps)
+
+    def arm_points(self, angles: np.ndarray) -> np.ndarray:
+        """Elbow, wrist, hand and end-point of each arm (n, arms, 4, 3) for the joint angles (n, joints)."""
+        return np.stack([arm_points(angles[:, 7 * k : 7 * k + 7], side) for k, side in enumerate(self.arms)], 1)
+
+
+def touches_table(points: np.ndarray) -> np.ndarray:
+    """Whether any elbow, wrist, hand or end-point (n, arms, 4, 3) lies within its link's radius of the table top,
+    over the table, (n,): the contact rule as far as it follows from the joint angles."""
+    (x, y, _), (dx, dy, _) = TABLE["pos"], TABLE["size"]
+    over = (np.abs(points[..., 0] - x) <= dx) & (np.abs(points[..., 1] - y) <= dy)
+    return np.any(over & (points[..., 2] - POINT_RADII <= TABLE_TOP), axis=(1, 2))
 
 
 def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
