@@ -44,6 +44,12 @@ def _joint_rotations() -> tuple[np.ndarray, ...]:
     return tuple(_rotation_z(yaw) @ _rotation_y(pitch) @ _rotation_x(roll) for roll, pitch, yaw in (j.rpy for j in ARM))
 
 
+def _times(rotations: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """rotations (n, 3, 3) @ matrix (3, m) as one (3n, 3) @ (3, m) product: numpy's batched matmul of tiny
+    matrices costs about 4× more."""
+    return (rotations.reshape(-1, 3) @ matrix).reshape(len(rotations), 3, -1)
+
+
 def arm_points(angles: np.ndarray, side: str) -> np.ndarray:
     """Elbow, wrist, hand and end-point (n, 4, 3) in the base frame (metres) for one arm's joint angles (n, 7)."""
     angles = np.asarray(angles, dtype=np.float64)
@@ -52,10 +58,11 @@ def arm_points(angles: np.ndarray, side: str) -> np.ndarray:
     position = np.broadcast_to(np.asarray(mount, dtype=np.float64), (n, 3)).copy()
     rotation = np.broadcast_to(_rotation_z(yaw), (n, 3, 3)).copy()
     points = np.empty((n, 4, 3))
+    cosines, sines = np.cos(angles), np.sin(angles)
     for k, (joint, fixed) in enumerate(zip(ARM, _joint_rotations(), strict=True)):
-        position += rotation @ np.asarray(joint.origin)
-        rotation = rotation @ fixed
-        c, s = np.cos(angles[:, k])[:, None], np.sin(angles[:, k])[:, None]
+        position += _times(rotation, np.asarray(joint.origin)[:, None])[:, :, 0]
+        rotation = _times(rotation, fixed)
+        c, s = cosines[:, k, None], sines[:, k, None]
         x, y = rotation[:, :, 0].copy(), rotation[:, :, 1]
         rotation[:, :, 0] = c * x + s * y  # rotation @ Rz(angle), column by column
         rotation[:, :, 1] = c * y - s * x
@@ -63,6 +70,6 @@ def arm_points(angles: np.ndarray, side: str) -> np.ndarray:
             points[:, 0] = position
         elif k == ARM_POINTS["wrist"]:
             points[:, 1] = position
-    points[:, 2] = position + rotation @ np.asarray(HAND)
+    points[:, 2] = position + _times(rotation, np.asarray(HAND)[:, None])[:, :, 0]
     points[:, 3] = points[:, 2] + END_POINT_OFFSET * rotation[:, :, 2]
     return points
