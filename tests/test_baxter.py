@@ -28,6 +28,7 @@ from drrl.envs.baxter.task import (
     reach_verdict,
     side_box,
 )
+from drrl.envs.registry import lookup
 
 mujoco = import_mujoco()  # headless GL unless MUJOCO_GL says otherwise
 
@@ -292,6 +293,18 @@ def test_closed_form_reward_and_offsets_match_the_simulation_until_a_contact():
         np.testing.assert_array_equal(closed_end[same & terminated], True)
         compared += int(same.sum())
     assert compared > 10_000
+
+
+def test_the_tie_break_ranks_episodes_that_never_reach_by_their_distance():
+    env = BaxterReachVectorEnv(2, arms=("right",))
+    observation, info = env.reset(seed=0)
+    steps = np.ones(2)
+    plain, _ = env.task.observed_reward(observation, steps)
+    broken, ended = env.task.observed_reward(observation, steps, tie_break=0.1)
+    np.testing.assert_array_equal(plain, -1.0)  # neither start is at its target: 5.10 ties them
+    np.testing.assert_allclose(broken, -1.0 - 0.1 * info["distance"], rtol=1e-6)
+    assert not ended.any() and broken[np.argmin(info["distance"])] == broken.max()
+    assert lookup("baxter-reach-right").reward(observation, steps)[0] == pytest.approx(broken)
 
 
 def test_running_into_a_joint_limit_fails_the_episode():

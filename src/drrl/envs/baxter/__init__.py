@@ -14,10 +14,11 @@ Importing this package registers the environments below with Gymnasium (``gymnas
 task options (``controller``, ``reward``, ``action_noise``, ``fixed_target``, ...) are keyword arguments of ``make``.
 """
 
+from functools import partial
 from typing import Any
 
 from drrl.envs.baxter.model import SIDES
-from drrl.envs.baxter.task import ReachTask, explain_reach, reach_verdict
+from drrl.envs.baxter.task import TIE_BREAK, ReachTask, explain_reach, reach_verdict
 from drrl.envs.registry import EnvEntry, register
 
 ENVIRONMENTS: dict[
@@ -45,7 +46,7 @@ for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
         EnvEntry(
             _env_id,
             _alias,
-            reward=_task.observed_reward,
+            reward=partial(_task.observed_reward, tie_break=TIE_BREAK),
             complete_observation=_task.complete_observation,
             **_judged,
         ),
