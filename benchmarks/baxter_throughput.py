@@ -44,7 +44,7 @@ def main() -> None:
     torch.set_num_threads(1)  # the physics gets the cores
 
     env = make_batch_env(args.env, args.num_envs)
-    sims = env.sim  # the same MuJoCo batch the env steps
+    sims = env.robot  # the same MuJoCo batch the env steps
     obs_size, act_size = env.single_observation_space.shape[0], env.single_action_space.shape[0]
     policy = linear(obs_size, act_size)
     # small random weights: the arms move slowly and nothing fails within S steps

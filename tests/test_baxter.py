@@ -229,12 +229,12 @@ def test_random_targets_fill_their_box_and_fixed_targets_are_mirrored():
     env.reset(seed=0)
     for k, side in enumerate(SIDES):
         low, high = side_box(((0.55, -0.55, -0.05), (0.80, -0.25, 0.20)), side)
-        targets = env.sim.targets[:, k]
+        targets = env.robot.targets[:, k]
         assert np.all(targets >= low) and np.all(targets <= high)
         assert np.all(targets.max(axis=0) - targets.min(axis=0) > 0.9 * (high - low))
     fixed = BaxterReachVectorEnv(1, arms=SIDES)
     fixed.reset(seed=0)
-    np.testing.assert_allclose(fixed.sim.targets[0], [[0.75, -0.40, 0.05], [0.75, 0.40, 0.05]])
+    np.testing.assert_allclose(fixed.robot.targets[0], [[0.75, -0.40, 0.05], [0.75, 0.40, 0.05]])
 
 
 def test_touching_the_table_fails_the_episode():
@@ -242,7 +242,7 @@ def test_touching_the_table_fails_the_episode():
     env.reset(seed=0)
     over_the_table = neutral_pose("right")
     over_the_table[[0, 1, 3, 5]] = 0.6, 0.3, 0.0, 0.0  # arm stretched forward, just above the table top
-    env.sim.restart(np.arange(1), over_the_table[None], env.sim.targets.copy())
+    env.robot.restart(np.arange(1), over_the_table[None], env.robot.targets.copy())
     down = np.zeros((1, 7))
     down[0, 3] = 1.5  # bend the elbow: the forearm swings down onto the table
     for t in range(1, 100):  # noqa: B007 (t is read after the loop)
@@ -251,7 +251,7 @@ def test_touching_the_table_fails_the_episode():
             break
     assert terminated[0] and not truncated[0] and 1 < t < 60
     assert reward[0] == -2.0 * (2000 - t)
-    assert env.sim.in_contact[0] and not env.task.at_limit(env.sim.qpos)[0]
+    assert env.robot.in_contact[0] and not env.task.at_limit(env.robot.qpos)[0]
 
 
 def test_the_closed_form_table_rule_fails_within_a_few_steps_of_the_real_contact():
@@ -259,7 +259,7 @@ def test_the_closed_form_table_rule_fails_within_a_few_steps_of_the_real_contact
     env.reset(seed=0)
     over_the_table = neutral_pose("right")
     over_the_table[[0, 1, 3, 5]] = 0.6, 0.3, 0.0, 0.0
-    env.sim.restart(np.arange(1), over_the_table[None], env.sim.targets.copy())
+    env.robot.restart(np.arange(1), over_the_table[None], env.robot.targets.copy())
     down = np.zeros((1, 7))
     down[0, 3] = 1.5
     closed_form = []
@@ -287,7 +287,7 @@ def test_closed_form_reward_and_offsets_match_the_simulation_until_a_contact():
             env.task.complete_observation(previous, observation)[stepped], observation[stepped], atol=1e-5, rtol=0
         )
         closed_reward, closed_end = env.task.observed_reward(observation, env.elapsed_steps)
-        real_contact = env.sim.in_contact & ~env.task.at_limit(env.sim.qpos)
+        real_contact = env.robot.in_contact & ~env.task.at_limit(env.robot.qpos)
         same = stepped & ~real_contact  # contacts with the body or the other arm need link shapes
         np.testing.assert_array_equal(closed_reward[same & ~closed_end], reward[same & ~closed_end])
         np.testing.assert_array_equal(closed_end[same & terminated], True)
@@ -317,7 +317,7 @@ def test_running_into_a_joint_limit_fails_the_episode():
         if terminated[0]:
             break
     assert terminated[0] and 70 < t < 90  # ~3 rad at 4 rad/s
-    assert env.task.at_limit(env.sim.qpos)[0] and reward[0] == -2.0 * (2000 - t)
+    assert env.task.at_limit(env.robot.qpos)[0] and reward[0] == -2.0 * (2000 - t)
 
 
 def test_verdict_counts_episodes_that_held_the_target_for_half_the_horizon():
@@ -368,7 +368,7 @@ def test_a_zero_joint_target_action_holds_the_neutral_pose():
     for _ in range(300):  # 3 s: fifteen time constants of the controller
         _, _, terminated, _, _ = env.step(np.zeros((1, 14)))
         assert not terminated[0]
-    np.testing.assert_allclose(env.sim.qpos[0], env.task.neutral, atol=0.01)
+    np.testing.assert_allclose(env.robot.qpos[0], env.task.neutral, atol=0.01)
 
 
 @pytest.mark.parametrize("sign", [-1.0, 1.0])
@@ -381,10 +381,10 @@ def test_joint_targets_keep_every_joint_off_its_limits(sign):
     ended = np.zeros(7, dtype=bool)
     for _ in range(400):
         _, _, terminated, _, _ = env.step(actions)
-        assert not env.task.at_limit(env.sim.qpos).any()
+        assert not env.task.at_limit(env.robot.qpos).any()
         ended |= terminated  # the shoulder pitched far down meets the table: a contact, not a limit
     assert ended.sum() <= 1
-    angles = env.sim.qpos[np.arange(7), np.arange(7)]
+    angles = env.robot.qpos[np.arange(7), np.arange(7)]
     low, high = env.task.joint_low[:7], env.task.joint_high[:7]
     inside = np.clip(env.task.neutral[:7] + sign * TARGET_SPAN, low + LIMIT_MARGIN, high - LIMIT_MARGIN)
     np.testing.assert_allclose(angles[~ended], inside[~ended], atol=0.02)
@@ -607,13 +607,13 @@ def test_a_stand_in_acts_a_period_late_with_a_lag_and_reads_noisy_sensors():
     push = np.full((1, 7), 0.5)
     late.step(push)
     now.step(push)
-    assert np.abs(late.sim.qvel).max() < 0.01 < np.abs(now.sim.qvel).max()  # the command has not arrived yet
+    assert np.abs(late.robot.qvel).max() < 0.01 < np.abs(now.robot.qvel).max()  # the command has not arrived yet
     late.step(np.zeros((1, 7)))
-    assert np.abs(late.sim.qvel).max() > 0.1  # it arrives one period late
+    assert np.abs(late.robot.qvel).max() > 0.1  # it arrives one period late
     actuation = Actuation(StandIn(delay=0, lag=0.05), 1, 1, 0.01)
     followed = [actuation(np.ones((1, 1)))[0, 0] for _ in range(5)]
     np.testing.assert_allclose(followed, 1 - np.exp(-0.01 * np.arange(1, 6) / 0.05))  # first-order lag
     noisy = BaxterReachVectorEnv(2, arms=("right",), stand_in={"angle_noise": 0.01})
     observation, _ = noisy.reset(seed=[1, 2])
-    error = observation[:, :7] - noisy.sim.qpos
+    error = observation[:, :7] - noisy.robot.qpos
     assert 0.001 < np.abs(error).max() < 0.05  # readings off by about 0.01 rad; the state itself is not

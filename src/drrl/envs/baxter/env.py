@@ -6,6 +6,9 @@
 velocity limits; actions beyond them are clipped to them (drrl's ActionMap already maps policy outputs onto the
 Box), while actions of the wrong shape or with NaN or infinite entries raise ValueError.
 
+The envs reach their robots only through ``drrl.envs.baxter.robot.Robot``: drrl's MuJoCo simulation unless a
+``robot`` is given, e.g. a real Baxter (``drrl.envs.baxter.ros.RosBaxter``), which then runs the same task.
+
 Observation (see ReachTask.observe): joint angles (rad), joint velocities as fractions of their limits, each target
 (m, base frame) and each end-point-to-target offset (in 0.1 m); for two arms the right arm's entries come first in
 each group.
@@ -23,6 +26,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from drrl.envs.baxter.model import TIMESTEP, load_model
+from drrl.envs.baxter.robot import Robot
 from drrl.envs.baxter.simulation import BaxterBatch
 from drrl.envs.baxter.standin import Actuation, StandIn
 from drrl.envs.baxter.task import CONTROL_PERIOD, ReachTask
@@ -76,6 +80,8 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
     (a ``StandIn`` or its keyword arguments) makes every robot of the batch that stand-in for the real Baxter.
     ``info["distance"]`` holds each env's largest end-point-to-target distance (m) after the step. ``width``,
     ``height`` and ``shadows`` set the rgb_array frames (shadows and reflections cost about 5× the frame time).
+    ``robot``: the robots to run the task on (``drrl.envs.baxter.robot.Robot``, one per env, moving the task's arms
+    at its control period); drrl's simulation unless given. An env that ends stops its robot (``Robot.stop``).
     """
 
     metadata = {**_METADATA, "autoreset_mode": AutoresetMode.NEXT_STEP}
@@ -90,6 +96,7 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         height: int = 240,
         shadows: bool = False,
         stand_in: StandIn | dict | None = None,
+        robot: Robot | None = None,
         **task_options: Any,
     ) -> None:
         self.num_envs = num_envs
@@ -97,12 +104,14 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         self._render_options: dict[str, Any] = {"width": width, "height": height, "shadows": shadows}
         self.task = task if task is not None else ReachTask(**task_options)
         self.stand_in = StandIn(**stand_in) if isinstance(stand_in, dict) else stand_in
-        arms = self.task.arms
-        if self.stand_in is None:
-            self.sim, self._actuation = BaxterBatch(num_envs, arms, SUBSTEPS, threads), None
+        arms, self._actuation = self.task.arms, None
+        if robot is not None:
+            self.robot = _checked_robot(robot, num_envs, arms, self.stand_in)
+        elif self.stand_in is None:
+            self.robot = BaxterBatch(num_envs, arms, SUBSTEPS, threads)
         else:
             model = self.stand_in.model(load_model(arms), arms)
-            self.sim = BaxterBatch(num_envs, arms, SUBSTEPS, threads, model)
+            self.robot = BaxterBatch(num_envs, arms, SUBSTEPS, threads, model)
             self._actuation = Actuation(self.stand_in, num_envs, self.task.num_joints, CONTROL_PERIOD)
         self.single_observation_space, self.single_action_space = _spaces(self.task)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
@@ -153,11 +162,13 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         """One RGB frame per env, or None without render_mode 'rgb_array'."""
         if self.render_mode is None or self._randomness is None:
             return None
+        if not isinstance(self.robot, BaxterBatch):
+            raise ValueError(f"only drrl's simulation renders frames; this env runs on {type(self.robot).__name__}")
         if self._renderer is None:
             from drrl.envs.baxter.render import SceneRenderer
 
-            self._renderer = SceneRenderer(self.sim.model, **self._render_options)
-        return tuple(self._renderer.render(self.sim.data(i)) for i in range(self.num_envs))
+            self._renderer = SceneRenderer(self.robot.model, **self._render_options)
+        return tuple(self._renderer.render(self.robot.data(i)) for i in range(self.num_envs))
 
     def close(self, **kwargs: Any) -> None:
         if self._renderer is not None:
@@ -175,7 +186,7 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
 
     def _start(self, ids: np.ndarray) -> None:
         joints, targets = self.task.starts(self._random.uniform(ids, self.task.random_numbers_per_start))
-        self.sim.restart(ids, joints, targets)
+        self.robot.restart(ids, joints, targets)
         if self._actuation is not None:
             self._actuation.restart(ids)
         self.elapsed_steps[ids] = 0
@@ -184,29 +195,48 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
     def _advance(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Physics and reward of one control period: (reward, terminated, truncated, largest distance), each (n,)."""
         limit = self.task.max_velocity
-        velocities = self.task.velocities(actions, self.sim.qpos)
+        velocities = self.task.velocities(actions, self.robot.qpos)
         if self.task.action_noise:
             noise = self._random.normal(np.arange(self.num_envs), self.task.num_joints)
             velocities = velocities + self.task.action_noise * limit * noise
         velocities = np.clip(velocities, -limit, limit)
-        self.sim.step(velocities if self._actuation is None else self._actuation(velocities))
+        self.robot.step(velocities if self._actuation is None else self._actuation(velocities))
         self.elapsed_steps += 1
         distances = self._distances()
-        failed = self.sim.in_contact | self.task.at_limit(self.sim.qpos)
+        failed = self.robot.in_contact | self.task.at_limit(self.robot.qpos)
         reward, terminated = self.task.rewards(distances, failed, self.elapsed_steps)
         truncated = self.elapsed_steps >= self.task.horizon
+        if (terminated | truncated).any():
+            self.robot.stop(np.flatnonzero(terminated | truncated))
         return reward, terminated, truncated, distances.max(axis=1)
 
     def _distances(self) -> np.ndarray:
-        return np.linalg.norm(self.sim.targets - self.sim.end_points, axis=2)
+        return np.linalg.norm(self.robot.targets - self.robot.end_points, axis=2)
 
     def _observe(self) -> np.ndarray:
-        qpos, qvel = self.sim.qpos, self.sim.qvel
+        qpos, qvel = self.robot.qpos, self.robot.qvel
         if self.stand_in is not None:  # what the robot's joint sensors read
             ids, joints = np.arange(self.num_envs), self.task.num_joints
             qpos = qpos + self.stand_in.angle_noise * self._random.normal(ids, joints)
             qvel = qvel + self.stand_in.velocity_noise * self._random.normal(ids, joints)
-        return self.task.observe(qpos, qvel, self.sim.targets, self.sim.end_points)
+        return self.task.observe(qpos, qvel, self.robot.targets, self.robot.end_points)
+
+
+def _checked_robot(robot: Robot, num_envs: int, arms: tuple[str, ...], stand_in: StandIn | None) -> Robot:
+    """``robot`` if it can run the task: one robot per env, the task's arms moving, the task's control period."""
+    if stand_in is not None:
+        raise ValueError("stand_in makes drrl's simulation a stand-in robot; give either stand_in or robot")
+    if robot.num_robots != num_envs or tuple(robot.arms) != arms:
+        raise ValueError(
+            f"the env needs {num_envs} robot(s) moving {arms}; the robot given has {robot.num_robots} moving "
+            f"{tuple(robot.arms)}"
+        )
+    if not np.isclose(robot.control_period, CONTROL_PERIOD):
+        raise ValueError(
+            f"the reach task is commanded every {CONTROL_PERIOD} s (its horizon counts control steps); the robot "
+            f"given is commanded every {robot.control_period} s"
+        )
+    return robot
 
 
 def _checked(actions, shape: tuple[int, ...]) -> np.ndarray:
@@ -221,7 +251,8 @@ def _checked(actions, shape: tuple[int, ...]) -> np.ndarray:
 
 
 class BaxterReachEnv(gym.Env):
-    """A single Baxter: the vector env's physics and task for one env, without autoreset.
+    """A single Baxter: the vector env's physics and task for one env, without autoreset; ``robot``, e.g. a real
+    Baxter, runs it instead of the simulation.
 
     ``reset(seed=s)`` gives the same episode as env i of a vector env reset with ``seed=[..., s, ...]``.
     """
@@ -235,10 +266,11 @@ class BaxterReachEnv(gym.Env):
         width: int = 320,
         height: int = 240,
         shadows: bool = False,
+        robot: Robot | None = None,
         **task_options: Any,
     ) -> None:
         self._vector = BaxterReachVectorEnv(
-            1, render_mode, task, threads=1, width=width, height=height, shadows=shadows, **task_options
+            1, render_mode, task, threads=1, width=width, height=height, shadows=shadows, robot=robot, **task_options
         )
         self.render_mode = self._vector.render_mode
         self.task = self._vector.task
@@ -246,8 +278,8 @@ class BaxterReachEnv(gym.Env):
         self.action_space = self._vector.single_action_space
 
     @property
-    def sim(self) -> BaxterBatch:
-        return self._vector.sim
+    def robot(self) -> Robot:
+        return self._vector.robot
 
     @property
     def elapsed_steps(self) -> int:

@@ -73,3 +73,8 @@ def arm_points(angles: np.ndarray, side: str) -> np.ndarray:
     points[:, 2] = position + _times(rotation, np.asarray(HAND)[:, None])[:, :, 0]
     points[:, 3] = points[:, 2] + END_POINT_OFFSET * rotation[:, :, 2]
     return points
+
+
+def arms_points(angles: np.ndarray, arms: tuple[str, ...]) -> np.ndarray:
+    """``arm_points`` of each of ``arms`` (n, arms, 4, 3) for their joint angles side by side (n, 7 · arms)."""
+    return np.stack([arm_points(angles[:, 7 * k : 7 * k + 7], side) for k, side in enumerate(arms)], 1)

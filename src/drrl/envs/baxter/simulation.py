@@ -3,7 +3,8 @@
 Each call runs every simulation for one control period in C threads, with the joint-velocity commands held (the
 policy is closed-loop at the control rate), then computes the new positions and contacts, so that the end-points and
 collisions read afterwards belong to the state the policy will observe. One MjData is kept per simulation
-(``persistent=True``): the next step starts from those stages instead of computing them again.
+(``persistent=True``): the next step starts from those stages instead of computing them again. ``BaxterBatch`` is
+a ``drrl.envs.baxter.robot.Robot``: the reach envs step it as they would step real robots.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ class BaxterBatch:
 
     ``qpos``, ``qvel`` and ``targets`` are live (num_sims, ...) views of the simulations' states; ``threads``
     defaults to every available core (at most one per simulation); ``model``, drrl's model of Baxter unless given.
+    A stopped simulation (``stop``) is commanded to stand still until it is restarted.
     """
 
     def __init__(
@@ -38,7 +40,8 @@ class BaxterBatch:
         mujoco = import_mujoco()
         from mujoco.batch import Batch
 
-        self.model = load_model(tuple(moving_arms)) if model is None else model
+        self.arms, self.num_robots = tuple(moving_arms), num_sims
+        self.model = load_model(self.arms) if model is None else model
         self.substeps = substeps
         threads = min(threads or available_cores(), num_sims)
         self._stage = mujoco.mjtStage.mjSTAGE_POS  # kinematics and collisions at the new state
@@ -53,6 +56,7 @@ class BaxterBatch:
         self._end_point_sites = [self.model.site(f"{side}_end_point").id for side in moving_arms]
         self._warning_counts = self.batch.warning[:, :, 1]  # (num_sims, kinds): mjWarningStat's "number"
         self._warning_names = [mujoco.mjtWarning(k).name for k in range(self._warning_counts.shape[1])]
+        self._stopped = np.zeros(num_sims, dtype=bool)
 
     @property
     def control_period(self) -> float:
@@ -74,7 +78,12 @@ class BaxterBatch:
         self.batch.reset(ids, stage=self._no_stage)  # the state is written next
         self.qpos[ids] = qpos
         self.targets[ids] = targets
+        self._stopped[ids] = False
         self.batch.forward(ids, stage=self._stage)
+
+    def stop(self, ids: np.ndarray) -> None:
+        """The safety stop: simulations ``ids`` are commanded to stand still until restarted."""
+        self._stopped[ids] = True
 
     def step(self, velocities: np.ndarray) -> None:
         """One control period for every simulation with joint-velocity commands ``velocities`` (num_sims, joints)
@@ -83,7 +92,7 @@ class BaxterBatch:
         Raises RuntimeError if MuJoCo warned in any simulation (e.g. a NaN or diverging state, which MuJoCo would
         otherwise answer by quietly resetting that simulation).
         """
-        self._ctrl[:] = velocities
+        self._ctrl[:] = np.where(self._stopped[:, None], 0.0, velocities)
         self.batch.step(nstep=self.substeps, stage=self._stage)
         if self._warning_counts.any():
             sims, kinds = np.nonzero(self._warning_counts)

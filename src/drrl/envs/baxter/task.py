@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from drrl.envs.baxter.kinematics import POINT_RADII, arm_points
+from drrl.envs.baxter.kinematics import POINT_RADII, arms_points
 from drrl.envs.baxter.model import ARM, SIDES, TABLE, TABLE_TOP, neutral_pose
 
 CONTROL_PERIOD = 0.01  # seconds per action: 5 physics steps of 0.002 s
@@ -250,7 +250,7 @@ class ReachTask:
 
     def arm_points(self, angles: np.ndarray) -> np.ndarray:
         """Elbow, wrist, hand and end-point of each arm (n, arms, 4, 3) for the joint angles (n, joints)."""
-        return np.stack([arm_points(angles[:, 7 * k : 7 * k + 7], side) for k, side in enumerate(self.arms)], 1)
+        return arms_points(angles, self.arms)
 
 
 def touches_table(points: np.ndarray) -> np.ndarray:
