@@ -335,8 +335,16 @@ def check_same_spaces(env: VectorEnv, trained_on: VectorEnv, trained_id: str) ->
 @click.option("--fps", type=click.IntRange(min=1), default=25, show_default=True, help="video frames per second")
 @click.option("--max-steps", type=click.IntRange(min=1), help="stop the episode after this many steps")
 @click.option("--shadows", is_flag=True, help="Baxter: MuJoCo's shadows and reflections (about 5× slower)")
+@click.option("--env", "env_name", help="record on this env instead, of the same spaces (e.g. a stand-in robot)")
 def render_command(
-    run_path: Path, out: Path, seed: int, final: bool, fps: int, max_steps: int | None, shadows: bool
+    run_path: Path,
+    out: Path,
+    seed: int,
+    final: bool,
+    fps: int,
+    max_steps: int | None,
+    shadows: bool,
+    env_name: str | None,
 ) -> None:
     """Record one episode of a trained centre policy as a video, headless, e.g. `drrl render RUN --out reach.mp4`."""
     from drrl.video import render_run  # imports Pillow and, for Baxter, MuJoCo's renderer only when asked
@@ -349,6 +357,7 @@ def render_command(
             seed=seed,
             fps=fps,
             max_steps=max_steps,
+            env_name=env_name,
             **({"shadows": True} if shadows else {}),
         )
     except (ValueError, ImportError, RuntimeError) as error:  # a bad run folder or format, no MP4 writer or GL

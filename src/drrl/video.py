@@ -135,24 +135,25 @@ def render_run(
     seed: int = 0,
     fps: float = 25.0,
     max_steps: int | None = None,
+    env_name: str | None = None,
     **env_options: Any,
 ) -> Recording:
     """Record one episode of a run folder's best measured (or, with ``final``, last) centre policy to ``out``, cut
-    at ``max_steps`` (default: the run's own ``max_steps``, if it had one).
+    at ``max_steps`` (default: the run's own ``max_steps``, if it had one), on the env it trained on or on
+    ``env_name``, which must have the same spaces (e.g. the stand-in of the robot it trained on).
 
     ``env_options`` go to ``gymnasium.make`` (Baxter: ``width``, ``height``, ``shadows``)."""
     out = check_video_path(out)
     folder = RunFolder(Path(run_path))
     config, checkpoint = open_run(folder)
-    env_id = lookup(checkpoint["env_id"]).env_id
-    if ".mujoco" in str(gymnasium.spec(env_id).entry_point):
-        import_mujoco()  # a headless OpenGL unless MUJOCO_GL says otherwise, before Gymnasium imports MuJoCo
-    try:
-        env = gymnasium.make(env_id, render_mode="rgb_array", **env_options)
-    except TypeError as error:  # an option this env does not take, e.g. shadows for the cart-pole
-        raise ValueError(f"{env_id} cannot render with {env_options}: {error}") from None
-    except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
-        raise ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}") from None
+    env_id = lookup(env_name or checkpoint["env_id"]).env_id
+    env = _rendering_env(env_id, env_options)
+    if env_name is not None:
+        trained_on = _rendering_env(lookup(checkpoint["env_id"]).env_id, env_options)
+        trained_on.close()
+        if (env.observation_space, env.action_space) != (trained_on.observation_space, trained_on.action_space):
+            env.close()
+            raise ValueError(f"the policy was trained on {checkpoint['env_id']}, whose spaces are not {env_id}'s")
     try:
         policy = make_policy(config.policy, observation_size(env.observation_space), ActionMap(env.action_space).size)
         center = trained_center(checkpoint, policy, final)
@@ -163,3 +164,15 @@ def render_run(
         env.close()
     write_video(recording.frames, out, recording.fps)
     return recording
+
+
+def _rendering_env(env_id: str, env_options: dict[str, Any]) -> gymnasium.Env:
+    """``env_id`` made to draw rgb_array frames headless with ``env_options``; a ValueError saying why it cannot."""
+    if ".mujoco" in str(gymnasium.spec(env_id).entry_point):
+        import_mujoco()  # a headless OpenGL unless MUJOCO_GL says otherwise, before Gymnasium imports MuJoCo
+    try:
+        return gymnasium.make(env_id, render_mode="rgb_array", **env_options)
+    except TypeError as error:  # an option this env does not take, e.g. shadows for the cart-pole
+        raise ValueError(f"{env_id} cannot render with {env_options}: {error}") from None
+    except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
+        raise ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}") from None
