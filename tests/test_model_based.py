@@ -90,6 +90,14 @@ def test_the_in_model_search_stops_early_once_it_stops_improving():
     assert row["imagined_episodes"] == row["generations"] * 10 * 2
 
 
+def test_imagined_episodes_end_at_the_imagined_horizon_and_real_ones_at_the_tasks():
+    settings = dict(popsize=10, episodes_per_candidate=2, budget=2, eval_episodes=5, seed=2)
+    config = TrainConfig.model_validate({**settings, "model_based": {**QUICK_MODEL, "imagined_horizon": 7}})
+    row = train(config).rows[0]
+    assert row["imagined_steps"] <= 7 * row["imagined_episodes"]
+    assert row["real_steps"] > 2 * 7  # the real episodes are not cut
+
+
 def test_an_in_model_search_whose_candidates_all_tie_says_so_and_widens_sigma():
     """A model in which every policy earns the same return gives no gradient: each such generation is counted in
     the row, μ stays where it is and σ grows."""

@@ -81,6 +81,8 @@ class ModelBased(World):
         self.action_space = eval_env.single_action_space
         self.model = build_model(settings, eval_env, config.seed).to(config.device)
         self.horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
+        if settings.imagined_horizon is not None:  # imagined episodes end sooner than the task's
+            self.horizon = min(self.horizon, settings.imagined_horizon)
         known = settings.reward in ("auto", "known")
         self.known_reward = entry.reward if known else None
         self.complete_observation = entry.complete_observation if known else None

@@ -56,6 +56,12 @@ class ModelBasedSettings(BaseModel):
         description="stop the in-model search when the candidates' mean imagined return has not "
         "improved over this many generations",
     )
+    imagined_horizon: int | None = Field(
+        None,
+        ge=1,
+        le=10**9,
+        description="imagined episodes end after this many steps (unset: at the task's horizon)",
+    )
     model_kind: str = "rnn"
     hidden: tuple[int, ...] = Field((64,), min_length=1, description="widths of the stacked layers")
     ensemble_size: int = Field(1, ge=1, le=1000)
