@@ -30,7 +30,12 @@ ENVIRONMENTS: dict[
     "baxter-reach-right-random": ("drrl/BaxterReachRightRandom-v0", {"arms": ("right",), "targets": "random"}, True),
     # the thesis's setting on a stand-in for the real robot (``standin``): physics off, delay, lag, noisy sensors
     "baxter-reach-right-standin": ("drrl/BaxterReachRightStandIn-v0", {"arms": ("right",), "stand_in": {}}, True),
-    # both arms through the joint-target controller (``task``'s docstring says why)
+    # through the joint-target controller (``task``'s docstring says why)
+    "baxter-reach-right-targets": (
+        "drrl/BaxterReachRightTargets-v0",
+        {"arms": ("right",), "controller": "joint_targets"},
+        True,
+    ),
     "baxter-reach-targets": ("drrl/BaxterReachTargets-v0", {"arms": SIDES, "controller": "joint_targets"}, True),
     "baxter-reach-dense-targets": (
         "drrl/BaxterReachDenseTargets-v0",
