@@ -252,7 +252,8 @@ def better_center(met: dict[str, bool], center_return: float, best_criteria: int
 
 @contextmanager
 def _sigterm_as_interrupt():
-    """While training, SIGTERM stops the run as Ctrl-C does (KeyboardInterrupt), so that both save a checkpoint."""
+    """While training, SIGTERM stops the run as Ctrl-C does (KeyboardInterrupt), so that both save a checkpoint.
+    Both handlers are installed here, so that neither depends on what a library imported earlier did with them."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -260,11 +261,12 @@ def _sigterm_as_interrupt():
     def interrupt(signum, frame):
         raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    previous = {how: signal.signal(how, interrupt) for how in (signal.SIGTERM, signal.SIGINT)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for how, handler in previous.items():
+            signal.signal(how, handler)
 
 
 # ------------------------------------------------------------------------------------------------ checkpoints
