@@ -136,3 +136,13 @@ def test_without_roslibpy_one_line_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "roslibpy", None)
     with pytest.raises(ImportError, match=r'pip install "drrl\[ros\]"'):
         RosBaxter(ARMS)
+
+
+def test_a_step_after_a_pause_holds_its_command_for_a_whole_period():
+    bridge = SimulatedBridge(ARMS)
+    env = BaxterReachEnv(robot=RosBaxter(ARMS, topic=bridge.topic, clock=bridge), arms=ARMS)
+    env.reset(seed=0)
+    bridge.time += 1.0  # the caller paused, e.g. to measure
+    paused = bridge.time
+    env.step(np.zeros(7))  # the bridge asserts that it sleeps one control period, not the 0.01 s already past
+    assert bridge.time == pytest.approx(paused + 0.01)

@@ -14,8 +14,8 @@ own. It uses the topics of Rethink Robotics' SDK:
 
 End-points come from the measured joint angles through ``drrl.envs.baxter.kinematics``, the same numbers as the
 simulation. The clock is this process's (``time.monotonic``): a step sends its command, sleeps to the end of the
-control period and reads the latest joint state. ``topic`` and ``clock`` can be given, so that the same class runs
-against the simulator in the tests.
+control period (a whole period if it is late) and reads the latest joint state. ``topic`` and ``clock`` can be
+given, so that the same class runs against the simulator in the tests.
 """
 
 from __future__ import annotations
@@ -167,10 +167,9 @@ class RosBaxter:
             self._commands[side].publish(command)
 
     def _wait(self) -> None:
-        """Sleep to the end of this control period; a late step starts the next period now instead of catching up."""
-        self._tick += self.control_period
-        remaining = self._tick - self._clock.monotonic()
-        if remaining > 0:
-            self._clock.sleep(remaining)
-        else:
-            self._tick = self._clock.monotonic()
+        """Sleep to the end of this control period; a late step (or the first after a pause) waits one whole period
+        from now instead of catching up, so that every command acts for a period before the state is read."""
+        now = self._clock.monotonic()
+        on_time = now <= self._tick + self.control_period
+        self._tick = (self._tick if on_time else now) + self.control_period
+        self._clock.sleep(self._tick - now)
