@@ -5,7 +5,11 @@ Side by side, on the same cores and threads, from the same start states, interle
 - env + policy: ``drrl.rollout.evaluate`` of N linear candidates for S control steps, each a policy call, an
   ``env.step`` (5 physics steps in C threads, then reward and observation in NumPy);
 - raw mj_step: the env's own MuJoCo batch (N MjData, same threads) asked for all N·5·S physics steps in one call,
-  with no Python between them: the rate MuJoCo itself reaches for this model here.
+  with no Python between them: the rate MuJoCo itself reaches for this model here;
+- raw mj_step a control period a call: the same batch asked for 5 physics steps S times, as the env asks it (with
+  the env's stages computed after each call), with nothing else between the calls. What it loses against one call
+  is MuJoCo's cost of stepping closed-loop (each call visits every simulation's data again, and waits for its
+  threads); what the env loses against it is drrl's own work.
 
 Both count physics steps per second: the median over repeats and, in brackets, the best, which on a shared machine
 is the closer estimate of what the code can do. Physics steps per process CPU-second are reported too. Restrict
@@ -57,29 +61,42 @@ def main() -> None:
     def raw() -> None:
         sims.batch.step(nstep=args.steps * sims.substeps)
 
-    env_times, raw_times = [], []
+    def raw_per_period() -> None:
+        for _ in range(args.steps):
+            sims.batch.step(nstep=sims.substeps, stage=sims.stage)
+
+    env_times, raw_times, period_times = [], [], []
     for _ in range(args.repeats):
         env_times.append(timed(with_policy))
         env.reset(seed=0)  # the same start states, at rest
         raw_times.append(timed(raw))
+        env.reset(seed=0)
+        period_times.append(timed(raw_per_period))
     print(
         f"{args.env}: {args.num_envs} envs × {args.steps} control steps × {sims.substeps} physics steps, "
         f"{sims.batch.nthread} MuJoCo threads, {args.repeats} interleaved repeats"
     )
     print("| | physics steps/s, median (best) | physics steps per CPU-second, median |")
     print("| --- | --- | --- |")
-    for name, times in (("batched env + linear policy", env_times), ("raw mj_step, same batch", raw_times)):
+    rows = (
+        ("batched env + linear policy", env_times),
+        ("raw mj_step, same batch", raw_times),
+        ("raw mj_step, a control period a call", period_times),
+    )
+    for name, times in rows:
         walls, cpus = [wall for wall, _ in times], [cpu for _, cpu in times]
         print(
             f"| {name} | {physics_steps / statistics.median(walls):,.0f} ({physics_steps / min(walls):,.0f}) | "
             f"{physics_steps / statistics.median(cpus):,.0f} |"
         )
-    env_walls, raw_walls = [wall for wall, _ in env_times], [wall for wall, _ in raw_times]
-    print(
-        f"| env / raw | {statistics.median(raw_walls) / statistics.median(env_walls):.0%} "
-        f"({min(raw_walls) / min(env_walls):.0%}) | "
-        f"{statistics.median(c for _, c in raw_times) / statistics.median(c for _, c in env_times):.0%} |"
-    )
+    for name, times in (("env / raw", raw_times), ("env / raw a control period a call", period_times)):
+        wall, best, cpu = ratio(times, env_times, 0), ratio(times, env_times, 0, min), ratio(times, env_times, 1)
+        print(f"| {name} | {wall} ({best}) | {cpu} |")
+
+
+def ratio(fast: list[tuple[float, float]], slow: list[tuple[float, float]], which: int, pick=statistics.median) -> str:
+    """How fast ``slow`` runs beside ``fast``, from the picked wall (which=0) or CPU (1) times."""
+    return f"{pick(t[which] for t in fast) / pick(t[which] for t in slow):.0%}"
 
 
 if __name__ == "__main__":

@@ -1,10 +1,11 @@
 """Many Baxters stepped together: MuJoCo's batch thread pool (``mujoco.batch``), one control period a call.
 
 Each call runs every simulation for one control period in C threads, with the joint-velocity commands held (the
-policy is closed-loop at the control rate), then computes the new positions and contacts, so that the end-points and
-collisions read afterwards belong to the state the policy will observe. One MjData is kept per simulation
-(``persistent=True``): the next step starts from those stages instead of computing them again. ``BaxterBatch`` is
-a ``drrl.envs.baxter.robot.Robot``: the reach envs step it as they would step real robots.
+policy is closed-loop at the control rate), then computes the position and velocity stages at the new state, so that
+the end-points and collisions read afterwards belong to the state the policy will observe. One MjData is kept per
+simulation (``persistent=True``): the next step starts from those stages instead of computing them again, so they
+cost nothing extra (the position stage alone would be computed again by the next step: 10–15 % of the time).
+``BaxterBatch`` is a ``drrl.envs.baxter.robot.Robot``: the reach envs step it as they would step real robots.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ class BaxterBatch:
         self.model = load_model(self.arms) if model is None else model
         self.substeps = substeps
         threads = min(threads or available_cores(), num_sims)
-        self._stage = mujoco.mjtStage.mjSTAGE_POS  # kinematics and collisions at the new state
+        self.stage = mujoco.mjtStage.mjSTAGE_VEL  # kinematics and collisions at the new state, kept for the next step
         self._no_stage = mujoco.mjtStage.mjSTAGE_NONE
         self.batch = Batch(self.model, num_sims, nthread=threads, persistent=True)
         self.qpos = self.batch.bind("qpos")
@@ -79,7 +80,7 @@ class BaxterBatch:
         self.qpos[ids] = qpos
         self.targets[ids] = targets
         self._stopped[ids] = False
-        self.batch.forward(ids, stage=self._stage)
+        self.batch.forward(ids, stage=self.stage)
 
     def stop(self, ids: np.ndarray) -> None:
         """The safety stop: simulations ``ids`` are commanded to stand still until restarted."""
@@ -92,8 +93,10 @@ class BaxterBatch:
         Raises RuntimeError if MuJoCo warned in any simulation (e.g. a NaN or diverging state, which MuJoCo would
         otherwise answer by quietly resetting that simulation).
         """
-        self._ctrl[:] = np.where(self._stopped[:, None], 0.0, velocities)
-        self.batch.step(nstep=self.substeps, stage=self._stage)
+        self._ctrl[:] = velocities
+        if self._stopped.any():
+            self._ctrl[self._stopped] = 0.0
+        self.batch.step(nstep=self.substeps, stage=self.stage)
         if self._warning_counts.any():
             sims, kinds = np.nonzero(self._warning_counts)
             names = sorted({self._warning_names[k] for k in kinds})
