@@ -550,7 +550,7 @@ def test_drrl_train_and_render_a_baxter_run_end_to_end(tmp_path):
     on_standin = CliRunner().invoke(main, [*standin, "--env", "baxter-reach-right-standin"])
     assert on_standin.exit_code == 0 and (tmp_path / "standin.gif").stat().st_size > 1000, on_standin.output
     mismatch = CliRunner().invoke(main, [*standin, "--env", "baxter-reach"])
-    assert mismatch.exit_code == 1 and "trained on drrl/BaxterReachRight-v0, whose spaces" in mismatch.output
+    assert mismatch.exit_code == 1 and "trained on drrl/BaxterReachRight-v0, whose observation" in mismatch.output
     refused = CliRunner().invoke(main, ["render", str(run), "--out", str(tmp_path / "reach.avi")])
     assert refused.exit_code != 0 and "unsupported video format '.avi'" in refused.output
 

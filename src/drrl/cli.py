@@ -7,7 +7,6 @@ import traceback
 from pathlib import Path
 
 import click
-from gymnasium.vector import VectorEnv
 from pydantic import ValidationError
 
 from drrl import __version__
@@ -24,7 +23,7 @@ from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.runs import RunFolder
 from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
-from drrl.train import build_policy, open_run, prepare, prepare_resume, subscribers, trained_center
+from drrl.train import build_policy, check_same_spaces, open_run, prepare, prepare_resume, subscribers, trained_center
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
 ERROR_LOG = "error.log"  # in the run folder: the traceback of whatever stopped the run
@@ -281,7 +280,14 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
         entry = lookup(env_name or checkpoint["env_id"])
         env = make_batch_env(entry.env_id, episodes, config.engine if env_name is None else "auto")
         if env_name is not None:
-            check_same_spaces(env, make_batch_env(checkpoint["env_id"], 1, config.engine), checkpoint["env_id"])
+            trained_on = make_batch_env(checkpoint["env_id"], 1, config.engine)
+            trained_on.close()
+            check_same_spaces(
+                checkpoint["env_id"],
+                (trained_on.single_observation_space, trained_on.single_action_space),
+                entry.env_id,
+                (env.single_observation_space, env.single_action_space),
+            )
     except ValueError as error:
         raise click.ClickException(f"{run_path}: {error}") from None
     policy = build_policy(config, env)
@@ -303,22 +309,6 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
         click.echo(f"{name.replace('_', '-') + ':':14}{'yes' if ok else 'no'}")
     if entry.explain is not None:
         click.echo(entry.explain(result.episode_returns, result.terminated))
-
-
-def check_same_spaces(env: VectorEnv, trained_on: VectorEnv, trained_id: str) -> None:
-    """Refuse to measure a policy on ``env`` unless its spaces are those of the env it was trained on."""
-    same = (env.single_observation_space, env.single_action_space) == (
-        trained_on.single_observation_space,
-        trained_on.single_action_space,
-    )
-    trained_on.close()
-    if not same:
-        env.close()
-        raise ValueError(
-            f"the policy was trained on {trained_id}, whose observation and action spaces "
-            f"({trained_on.single_observation_space}, {trained_on.single_action_space}) are not this env's "
-            f"({env.single_observation_space}, {env.single_action_space})"
-        )
 
 
 @main.command("render")

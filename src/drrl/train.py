@@ -213,6 +213,16 @@ def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> tor
     return checkpoint["center"] if final else checkpoint["best_center"]
 
 
+def check_same_spaces(trained_id: str, trained: tuple[spaces.Space, spaces.Space], env_id: str, given) -> None:
+    """Refuse to run a policy trained on ``trained_id`` on ``env_id`` unless their (observation, action) spaces
+    are the same."""
+    if tuple(trained) != tuple(given):
+        raise ValueError(
+            f"the policy was trained on {trained_id}, whose observation and action spaces {tuple(trained)} are not "
+            f"{env_id}'s {tuple(given)}"
+        )
+
+
 def subscribers(folder: RunFolder | None, progress: bool, tensorboard: bool = False) -> list[Subscriber]:
     """The model's guard (model-based runs), the run folder's writer (if a folder is given), the progress bar and
     TensorBoard (into the run folder)."""

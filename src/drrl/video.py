@@ -23,7 +23,7 @@ from drrl.envs.registry import lookup
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
-from drrl.train import open_run, trained_center
+from drrl.train import check_same_spaces, open_run, trained_center
 
 VIDEO_FORMATS = (".gif", ".mp4")
 INSTALL_MP4 = "writing MP4 needs imageio-ffmpeg: pip install 'drrl[render]' (or write a .gif)"
@@ -151,9 +151,16 @@ def render_run(
     if env_name is not None:
         trained_on = _rendering_env(lookup(checkpoint["env_id"]).env_id, env_options)
         trained_on.close()
-        if (env.observation_space, env.action_space) != (trained_on.observation_space, trained_on.action_space):
+        try:
+            check_same_spaces(
+                checkpoint["env_id"],
+                (trained_on.observation_space, trained_on.action_space),
+                env_id,
+                (env.observation_space, env.action_space),
+            )
+        except ValueError:
             env.close()
-            raise ValueError(f"the policy was trained on {checkpoint['env_id']}, whose spaces are not {env_id}'s")
+            raise
     try:
         policy = make_policy(config.policy, observation_size(env.observation_space), ActionMap(env.action_space).size)
         center = trained_center(checkpoint, policy, final)
