@@ -160,6 +160,24 @@ def test_a_joint_velocity_command_is_tracked():
     assert np.abs(sims.qvel[~np.eye(7, dtype=bool)]).max() < 0.01
 
 
+def test_a_batch_step_is_plain_mj_step_and_what_it_reads_belongs_to_the_new_state():
+    """Stepping a control period a call, with the stages kept for the next call, gives the states of mj_step on one
+    MjData, and the end-points read after each call are those of a fresh mj_forward at the new state."""
+    sims = BaxterBatch(2, ("right",), substeps=5)
+    sims.restart(np.arange(2), np.tile(neutral_pose("right"), (2, 1)), np.zeros((2, 1, 3)))
+    data = mujoco.MjData(sims.model)
+    data.qpos[:] = sims.qpos[1]
+    commands = np.random.default_rng(0).uniform(-0.5, 0.5, (30, 7))
+    site = sims.model.site("right_end_point").id
+    for command in commands:
+        sims.step(np.stack([np.zeros(7), command]))
+        data.ctrl[:] = command
+        mujoco.mj_step(sims.model, data, nstep=5)
+        np.testing.assert_array_equal(sims.qpos[1], data.qpos)
+        mujoco.mj_forward(sims.model, data)
+        np.testing.assert_allclose(sims.end_points[1, 0], data.site_xpos[site], atol=1e-12)
+
+
 def test_holding_still_stays_still():
     sims = BaxterBatch(1, SIDES, substeps=5)
     start = np.concatenate([neutral_pose(side) for side in SIDES])[None]
