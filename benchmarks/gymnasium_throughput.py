@@ -8,6 +8,7 @@ actions are the argmax of the policy's outputs, Box actions are clipped to their
 
 * drrl, engine ``gymnasium``: Gymnasium's envs stepped in turn, an ended episode's env left alone;
 * drrl, engine ``envpool``: EnvPool's C++ batch (a seeded reset makes the pool anew: once a generation);
+* drrl, engine ``processes``: the gymnasium engine's envs spread over one worker process per core;
 * EvoTorch ``GymNE``: one Gymnasium env, the candidates one after another;
 * EvoTorch ``VecGymNE``: Gymnasium envs in EvoTorch's own vector env, the policy called on the whole batch.
 
@@ -121,13 +122,12 @@ def timed(contender, generations: int) -> tuple[float, int]:
     return time.perf_counter() - start, steps
 
 
-def measure(env: str, popsize: int, rounds: int, seconds: float) -> list[dict]:
+def measure(env: str, popsize: int, rounds: int, seconds: float, engines: list[str]) -> list[dict]:
     """All contenders run the same generations, so that their searches are at the same stage (episode lengths
     change as a search learns): N a round for all, aimed at 1.5 × ``seconds`` for the fastest contender and raised
     after a round whose fastest took less."""
     contenders = [
-        Drrl(env, "gymnasium", popsize),
-        Drrl(env, "envpool", popsize),
+        *(Drrl(env, engine, popsize) for engine in engines),
         EvoTorch(env, "GymNE", popsize),
         EvoTorch(env, "VecGymNE", popsize),
     ]
@@ -164,13 +164,16 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--popsize", type=int, default=100)
     parser.add_argument("--seconds", type=float, default=2.0, help="least time of one contender's round")
+    parser.add_argument("--engines", default="gymnasium,envpool", help="comma-separated drrl engines")
     args = parser.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(0)  # EvoTorch's sampling
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     logging.getLogger("evotorch").setLevel(logging.WARNING)  # its INFO lines on every problem and optimizer made
     rows = [
-        row for env in args.envs.split(",") for row in measure(env.strip(), args.popsize, args.rounds, args.seconds)
+        row
+        for env in args.envs.split(",")
+        for row in measure(env.strip(), args.popsize, args.rounds, args.seconds, args.engines.split(","))
     ]
     print(
         f"popsize {args.popsize}, linear policy with bias, 1 episode per candidate, {args.rounds} rounds, "

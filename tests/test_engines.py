@@ -10,6 +10,8 @@ from click.testing import CliRunner
 from drrl.cli import main
 from drrl.envs import pool
 from drrl.envs.batch import choose_engine, make_batch_env
+from drrl.envs.cores import available_cores
+from drrl.envs.processes import ProcessEpisodes
 from drrl.policies import linear
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
@@ -55,6 +57,36 @@ def test_the_gymnasium_engine_runs_gymnasiums_episodes_and_steps_no_ended_one():
     assert ours.episode_returns.max() > -500 and ours.episode_returns.min() == -500  # uneven lengths indeed
 
 
+def test_the_processes_engine_runs_the_gymnasium_engines_episodes_on_every_worker():
+    """Three workers over 10 slots (blocks of 3, 4 and 3), episodes of uneven length: returns and counted steps
+    those of the one-process engine, whose episodes are Gymnasium's own."""
+    serial = make_batch_env("Acrobot-v1", 10, "gymnasium")
+    env = ProcessEpisodes("Acrobot-v1", 10, workers=3)
+    try:
+        policy, params = swinging_candidates(5)
+        ours, theirs = evaluate(policy, params, env, 2, seed=3), evaluate(policy, params, serial, 2, seed=3)
+        assert env.workers == 3
+        assert torch.equal(ours.episode_returns, theirs.episode_returns) and ours.steps == theirs.steps
+        assert ours.episode_returns.max() > -500 and ours.episode_returns.min() == -500
+    finally:
+        workers = list(env._processes)
+        env.close()
+    assert len(workers) == 3 and not any(process.is_alive() for process in workers)
+
+
+def test_the_processes_engine_refuses_in_the_callers_process_and_reports_a_workers_failure():
+    with pytest.raises(ValueError, match="cannot be made with options"):
+        make_batch_env("Acrobot-v1", 2, "processes", {"no_such_option": 1})
+    env = make_batch_env("CartPole-v1", 2, "processes")
+    try:
+        assert isinstance(env, ProcessEpisodes) and env.workers == min(2, available_cores())
+        env.reset(seed=0)
+        with pytest.raises(RuntimeError, match="an env worker failed: AssertionError"):
+            env.step(np.array([0, 7]))  # CartPole's actions are 0 and 1
+    finally:
+        env.close()
+
+
 def test_an_ended_episode_stays_where_it_ended_until_the_next_reset():
     env = make_batch_env("CartPole-v1", 2, "gymnasium")
     env.reset(seed=0)
@@ -76,7 +108,9 @@ def test_auto_picks_drrls_own_batch_for_its_envs_and_refuses_engines_that_cannot
     assert choose_engine("Acrobot-v1") == "gymnasium"
     with pytest.raises(ValueError, match=r'engine envpool is not installed; pip install "drrl\[envpool\]"'):
         choose_engine("Acrobot-v1", "envpool")
-    with pytest.raises(ValueError, match="Acrobot-v1 has no native drrl batch; its engines are envpool and gymnasium"):
+    with pytest.raises(
+        ValueError, match="Acrobot-v1 has no native drrl batch; its engines are envpool, gymnasium and processes"
+    ):
         choose_engine("Acrobot-v1", "native")
 
 
@@ -101,6 +135,15 @@ def test_a_run_names_the_engine_it_used_in_its_config(tmp_path, monkeypatch):
     )
     assert result.exit_code == 0, result.output
     assert RunFolder(out).read_config().engine == "gymnasium"
+    spread = tmp_path / "spread"
+    arguments = ["train", "Acrobot-v1", "--budget", "4", "--popsize", "4", "--eval-episodes", "2", "--quiet"]
+    result = CliRunner().invoke(main, [*arguments, "--engine", "processes", "--out", str(spread)])
+    assert result.exit_code == 0, result.output
+    assert RunFolder(spread).read_config().engine == "processes"
+    same_run = [
+        [line.rsplit(",", 1)[0] for line in (run / "metrics.csv").read_text().splitlines()] for run in (out, spread)
+    ]
+    assert same_run[0] == same_run[1] and same_run[0][0].endswith("eval_episodes")  # all but the wall time
     refused = CliRunner().invoke(main, ["train", "cartpole", "--engine", "envpool", "--out", str(tmp_path / "x")])
     assert refused.exit_code == 2 and 'engine envpool is not installed; pip install "drrl[envpool]"' in refused.output
 

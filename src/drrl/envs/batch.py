@@ -1,10 +1,12 @@
-"""The one batched-environment interface: Gymnasium's ``VectorEnv``, made by one of three engines.
+"""The one batched-environment interface: Gymnasium's ``VectorEnv``, made by one of four engines.
 
 * ``native``: drrl's own environments, NumPy or MuJoCo batches (``gymnasium.make_vec`` returns them).
 * ``envpool``: EnvPool's C++ batches of Gymnasium's classic-control and MuJoCo tasks (``drrl.envs.pool``).
 * ``gymnasium``: any other registered env with a 1-D Box observation and a Box or Discrete action, one Gymnasium
   env per slot stepped in turn (``drrl.envs.serial``). Gymnasium's own native vector envs are not used: they
   take one reset seed for the whole batch, and drrl gives every episode its own.
+* ``processes``: the same, the slots spread over one worker process per core (``drrl.envs.processes``), for envs
+  whose steps are expensive; the same episodes as ``gymnasium``. Never chosen by ``auto``.
 
 ``auto`` picks the first that can run the id; a run records the engine it used in its config. ``ActionMap`` turns
 a policy's raw outputs into actions of the env's action space. An ``EnvSource`` names a batched env so that
@@ -24,10 +26,11 @@ from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
 from drrl.envs import pool
+from drrl.envs.processes import ProcessEpisodes
 from drrl.envs.registry import is_own, lookup
 from drrl.envs.serial import SerialEpisodes
 
-ENGINES = ("auto", "native", "envpool", "gymnasium")
+ENGINES = ("auto", "native", "envpool", "gymnasium", "processes")
 
 
 class EnvSource(Protocol):
@@ -66,7 +69,7 @@ def choose_engine(name: str, engine: str = "auto", with_options: bool = False) -
         pooled = not with_options and pool.installed() and pool.ships(env_id)
         return "native" if native else "envpool" if pooled else "gymnasium"
     if engine == "native" and not native:
-        raise ValueError(f"{env_id} has no native drrl batch; its engines are envpool and gymnasium")
+        raise ValueError(f"{env_id} has no native drrl batch; its engines are envpool, gymnasium and processes")
     if engine == "envpool":
         if not pool.installed():
             raise ValueError('engine envpool is not installed; pip install "drrl[envpool]"')
@@ -90,6 +93,8 @@ def make_batch_env(
             if options:
                 raise ValueError(f"engine envpool makes {env_id} as EnvPool ships it, without options {options}")
             env = pool.PooledEpisodes(env_id, num_envs)
+        elif engine == "processes":
+            env = ProcessEpisodes(env_id, num_envs, options)
         else:
             env = SerialEpisodes(env_id, num_envs, options)
     except (ImportError, gymnasium.error.DependencyNotInstalled) as error:

@@ -14,11 +14,11 @@ Making a pool costs about 2.5 ms per MuJoCo env (its model is parsed anew), paid
 from __future__ import annotations
 
 import contextlib
-import os
 import warnings
 
 import numpy as np
 
+from drrl.envs.cores import available_cores
 from drrl.envs.slots import EpisodeSlots
 
 SEED_BITS = 31
@@ -60,8 +60,9 @@ class PooledEpisodes(EpisodeSlots):
                 self._pool.close()
             fresh = np.random.SeedSequence().generate_state(self.num_envs)  # for the unseeded ones
             env_seeds = [int(fresh[i] if seed is None else seed) % 2**SEED_BITS for i, seed in enumerate(seeds)]
+            threads = min(self.num_envs, available_cores())
             self._pool = envpool.make_gymnasium(
-                self.env_id, num_envs=self.num_envs, env_seed=env_seeds, num_threads=min(self.num_envs, _usable_cpus())
+                self.env_id, num_envs=self.num_envs, env_seed=env_seeds, num_threads=threads
             )
         with _quiet():  # the first reset builds the pool's spaces
             return self._pool.reset()[0]
@@ -74,10 +75,6 @@ class PooledEpisodes(EpisodeSlots):
     def close_extras(self, **kwargs):
         if self._pool is not None:
             self._pool.close()
-
-
-def _usable_cpus() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 @contextlib.contextmanager

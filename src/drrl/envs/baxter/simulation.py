@@ -10,16 +10,10 @@ cost nothing extra (the position stage alone would be computed again by the next
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from drrl.envs.baxter.model import SIDES, TIMESTEP, import_mujoco, load_model
-
-
-def available_cores() -> int:
-    """The CPU cores this process may run on (honours ``taskset``)."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+from drrl.envs.cores import available_cores
 
 
 class BaxterBatch:
