@@ -1,6 +1,9 @@
 """The engines that batch an env: the same episodes as Gymnasium's, no step computed that is not counted, and the
 engine a run used written to its config."""
 
+import os
+import signal
+
 import gymnasium
 import numpy as np
 import pytest
@@ -81,6 +84,9 @@ def test_the_processes_engine_refuses_in_the_callers_process_and_reports_a_worke
     try:
         assert isinstance(env, ProcessEpisodes) and env.workers == min(2, available_cores())
         env.reset(seed=0)
+        for worker in env._processes:  # Ctrl-C is the training process's to handle
+            os.kill(worker.pid, signal.SIGINT)
+        assert env.step(np.array([0, 1]))[1].tolist() == [1.0, 1.0]
         with pytest.raises(RuntimeError, match="an env worker failed: AssertionError"):
             env.step(np.array([0, 7]))  # CartPole's actions are 0 and 1
     finally:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import signal
 from collections.abc import Mapping
 from typing import Any
 
@@ -27,7 +28,9 @@ from drrl.envs.slots import EpisodeSlots
 
 def _serve(connection, env_id: str, num_envs: int, options: dict[str, Any]) -> None:
     """A worker: the serial engine's envs for its slots, answering ("start", seeds), ("advance", slots, actions) and
-    ("close",) until closed; an error is sent back as its message."""
+    ("close",) until closed; an error is sent back as its message. Ctrl-C reaches the whole process group: the
+    worker leaves it to the training process, which checkpoints and then closes its workers."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         envs = SerialEpisodes(env_id, num_envs, options)
     except Exception as error:
