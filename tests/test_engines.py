@@ -77,7 +77,7 @@ def test_the_processes_engine_runs_the_gymnasium_engines_episodes_on_every_worke
     assert len(workers) == 3 and not any(process.is_alive() for process in workers)
 
 
-def test_the_processes_engine_refuses_in_the_callers_process_and_reports_a_workers_failure():
+def test_the_processes_engine_refuses_bad_options_at_once_leaves_ctrl_c_to_training_and_reports_failures():
     with pytest.raises(ValueError, match="cannot be made with options"):
         make_batch_env("Acrobot-v1", 2, "processes", {"no_such_option": 1})
     env = make_batch_env("CartPole-v1", 2, "processes")
