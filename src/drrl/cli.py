@@ -66,7 +66,7 @@ def main(ctx: click.Context, debug: bool) -> None:
     "engine",
     click.Choice(ENGINES),
     "what steps the env's batch: drrl's own (native), EnvPool "
-    '(pip install "drrl[envpool]"), or Gymnasium\'s envs in turn',
+    '(pip install "drrl[envpool]"), Gymnasium\'s envs in turn (gymnasium) or over a process per core (processes)',
 )
 @setting("policy", str, ACCEPTED_FORMS)
 @setting(
