@@ -203,6 +203,9 @@ def open_run(folder: RunFolder) -> tuple[TrainConfig, dict]:
     return config, checkpoint
 
 
+SpacePair = tuple[spaces.Space, spaces.Space]  # (observation space, action space)
+
+
 def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> torch.Tensor:
     """The best measured centre (or, ``final``, the last one) for ``policy``, which must have its size."""
     if checkpoint["num_params"] != policy.num_params:
@@ -213,13 +216,13 @@ def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> tor
     return checkpoint["center"] if final else checkpoint["best_center"]
 
 
-def check_same_spaces(trained_id: str, trained: tuple[spaces.Space, spaces.Space], env_id: str, given) -> None:
+def check_same_spaces(trained_id: str, trained: SpacePair, env_id: str, given: SpacePair) -> None:
     """Refuse to run a policy trained on ``trained_id`` on ``env_id`` unless their (observation, action) spaces
     are the same."""
-    if tuple(trained) != tuple(given):
+    if trained != given:
         raise ValueError(
-            f"the policy was trained on {trained_id}, whose observation and action spaces {tuple(trained)} are not "
-            f"{env_id}'s {tuple(given)}"
+            f"the policy was trained on {trained_id}, whose observation and action spaces {trained} are not "
+            f"{env_id}'s {given}"
         )
 
 
