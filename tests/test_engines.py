@@ -61,8 +61,8 @@ def test_the_gymnasium_engine_runs_gymnasiums_episodes_and_steps_no_ended_one():
 
 
 def test_the_processes_engine_runs_the_gymnasium_engines_episodes_on_every_worker():
-    """Three workers over 10 slots (blocks of 3, 4 and 3), episodes of uneven length: returns and counted steps
-    those of the one-process engine, whose episodes are Gymnasium's own."""
+    """Three workers over 10 slots (4, 3 and 3 of them, dealt out in turn), episodes of uneven length: returns and
+    counted steps those of the one-process engine, whose episodes are Gymnasium's own."""
     serial = make_batch_env("Acrobot-v1", 10, "gymnasium")
     env = ProcessEpisodes("Acrobot-v1", 10, workers=3)
     try:

@@ -1,10 +1,14 @@
-"""Gymnasium's envs spread over worker processes, one block of slots each: the ``gymnasium`` engine on every core.
+"""Gymnasium's envs spread over worker processes, every W-th slot each: the ``gymnasium`` engine on every core.
 
-For envs whose step is expensive (Gymnasium's MuJoCo tasks) and that EnvPool does not ship. Each worker makes the
-same envs the ``serial`` engine makes for its block of slots and steps only the running ones, so the episodes are the
-serial engine's, step for step, whatever the number of workers. A step costs one message to and from every worker
-with running slots (tens of microseconds): for envs that step in microseconds (classic control) one process is
-faster.
+For envs whose step is expensive (Gymnasium's MuJoCo tasks) and that EnvPool does not ship. Worker w of W makes the
+same envs the ``serial`` engine makes for slots w, w + W, w + 2W, ... and steps only the running ones, so the
+episodes are the serial engine's, step for step, whatever the number of workers. Slots are dealt out in turn, not in
+blocks, so that the episodes still running late in a batch are shared among the workers. A step costs one message
+to and from every worker with running slots (a fraction of a millisecond): it pays where many envs run at once and
+each step is expensive; late in a batch of very uneven episodes, with few envs left running, it does not.
+
+A script that uses this engine needs the ``if __name__ == "__main__":`` guard around its work, as any use of
+Python's ``multiprocessing`` outside ``fork`` does: each worker imports the script's main module.
 
 Workers are started with ``forkserver`` (``spawn`` where it does not exist), never ``fork``: a forked copy of a
 process running PyTorch's or MuJoCo's threads can hang.
@@ -54,7 +58,7 @@ def _serve(connection, env_id: str, num_envs: int, options: dict[str, Any]) -> N
 
 class ProcessEpisodes(EpisodeSlots):
     """``num_envs`` copies of ``gymnasium.make(env_id, **options)`` over ``workers`` processes (default: one per
-    core this process may use, at most one per env), contiguous blocks of slots each."""
+    core this process may use, at most one per env), worker w holding slots w, w + W, ...."""
 
     def __init__(
         self, env_id: str, num_envs: int, options: Mapping[str, Any] | None = None, workers: int | None = None
@@ -63,16 +67,14 @@ class ProcessEpisodes(EpisodeSlots):
         probe = gymnasium.make(env_id, disable_env_checker=True, **(options or {}))
         probe.close()
         workers = max(1, min(workers or available_cores(), num_envs))
-        self._bounds = np.linspace(0, num_envs, workers + 1).round().astype(int)
         methods = multiprocessing.get_all_start_methods()
         context: Any = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
         self._connections, self._processes = [], []
         try:
-            for low, high in zip(self._bounds[:-1], self._bounds[1:], strict=True):
+            for worker in range(workers):
                 ours, theirs = context.Pipe()
-                process = context.Process(
-                    target=_serve, args=(theirs, env_id, int(high - low), dict(options or {})), daemon=True
-                )
+                slots = len(range(worker, num_envs, workers))
+                process = context.Process(target=_serve, args=(theirs, env_id, slots, dict(options or {})), daemon=True)
                 process.start()
                 theirs.close()
                 self._connections.append(ours)
@@ -88,19 +90,32 @@ class ProcessEpisodes(EpisodeSlots):
         return len(self._processes)
 
     def start(self, seeds):
-        for connection, low, high in self._blocks():
-            connection.send(("start", list(seeds[low:high])))
-        return np.concatenate(self._gather(self._connections))
+        for worker, connection in enumerate(self._connections):
+            connection.send(("start", list(seeds[worker :: self.workers])))
+        observations = None
+        for worker, answer in enumerate(self._gather(self._connections)):
+            if observations is None:
+                observations = np.empty((self.num_envs, *answer.shape[1:]), dtype=answer.dtype)
+            observations[worker :: self.workers] = answer
+        return observations
 
     def advance(self, slots, actions):
+        owners = slots % self.workers
         asked = []
-        for connection, low, high in self._blocks():
-            mine = (slots >= low) & (slots < high)
+        for worker, connection in enumerate(self._connections):
+            mine = owners == worker
             if mine.any():
-                connection.send(("advance", slots[mine] - low, actions[mine]))
+                connection.send(("advance", slots[mine] // self.workers, actions[mine]))
                 asked.append(connection)
-        answers = self._gather(asked)  # blocks in ascending order, as the slots
-        return tuple(np.concatenate(parts) for parts in zip(*answers, strict=True))
+        answers = self._gather(asked)  # in the order of the workers
+        order = np.argsort(owners, kind="stable")  # the slots as the workers' answers list them
+        results = []
+        for parts in zip(*answers, strict=True):
+            stacked = np.concatenate(parts)
+            result = np.empty_like(stacked)
+            result[order] = stacked
+            results.append(result)
+        return tuple(results)
 
     def close_extras(self, **kwargs):
         for connection in self._connections:
@@ -114,9 +129,6 @@ class ProcessEpisodes(EpisodeSlots):
             connection.close()
         self._connections, self._processes = [], []
 
-    def _blocks(self):
-        return zip(self._connections, self._bounds[:-1], self._bounds[1:], strict=True)
-
     @staticmethod
     def _gather(connections) -> list:
         """Every worker's answer, in order; raises for the first that failed once all have answered."""
@@ -125,7 +137,9 @@ class ProcessEpisodes(EpisodeSlots):
             try:
                 answers.append(connection.recv())
             except EOFError:
-                answers.append(("error", "its process ended unexpectedly"))
+                answers.append(
+                    ("error", 'its process ended (a script using this engine needs if __name__ == "__main__":)')
+                )
         failed = [message for status, message in answers if status == "error"]
         if failed:
             raise RuntimeError(f"an env worker failed: {failed[0]}")
