@@ -203,9 +203,6 @@ def open_run(folder: RunFolder) -> tuple[TrainConfig, dict]:
     return config, checkpoint
 
 
-SpacePair = tuple[spaces.Space, spaces.Space]  # (observation space, action space)
-
-
 def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> torch.Tensor:
     """The best measured centre (or, ``final``, the last one) for ``policy``, which must have its size."""
     if checkpoint["num_params"] != policy.num_params:
@@ -214,6 +211,9 @@ def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> tor
             f"policy needs as many"
         )
     return checkpoint["center"] if final else checkpoint["best_center"]
+
+
+SpacePair = tuple[spaces.Space, spaces.Space]  # (observation space, action space)
 
 
 def check_same_spaces(trained_id: str, trained: SpacePair, env_id: str, given: SpacePair) -> None:

@@ -92,10 +92,9 @@ class ProcessEpisodes(EpisodeSlots):
     def start(self, seeds):
         for worker, connection in enumerate(self._connections):
             connection.send(("start", list(seeds[worker :: self.workers])))
-        observations = None
-        for worker, answer in enumerate(self._gather(self._connections)):
-            if observations is None:
-                observations = np.empty((self.num_envs, *answer.shape[1:]), dtype=answer.dtype)
+        answers = self._gather(self._connections)  # every worker holds at least one slot
+        observations = np.empty((self.num_envs, *answers[0].shape[1:]), dtype=answers[0].dtype)
+        for worker, answer in enumerate(answers):
             observations[worker :: self.workers] = answer
         return observations
 
