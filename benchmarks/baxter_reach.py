@@ -10,11 +10,16 @@ when μ first reached ``--goal`` (95 % for a fixed target) and the final fractio
     python benchmarks/baxter_reach.py --env drrl/BaxterReachRightRandom-v0 --goal 0.8 --budget 4000
     python benchmarks/baxter_reach.py --env drrl/BaxterReachTargets-v0 --center-lr 0.1 \
         --schedule tolerance:0.5:0.05:1 --advance-at -1000 --budget 1500
+    python benchmarks/baxter_reach.py --model-based '{"model_kind": "linear"}' --budget 30 --probe-every 1
+
+With ``--model-based`` (JSON of ``ModelBasedSettings`` fields) the search runs inside a world model, a probe after
+every iteration; ``--popsize`` then counts imagined candidates, each on 10 imagined episodes.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import tempfile
 import time
@@ -115,6 +120,7 @@ def run_seed(args, seed: int) -> list[dict]:
         checkpoint_every=args.probe_every,
         seed=seed,
         env_schedule=schedule(args.schedule, args.advance_at, args.steps),
+        model_based=json.loads(args.model_based) if args.model_based else None,
     )
     with tempfile.TemporaryDirectory() as folder:
         probe = ReachProbe(config, args.eval_episodes, args.verbose)
@@ -162,6 +168,7 @@ def main() -> None:
     parser.add_argument("--advance-at", type=float, help="the schedule steps when the median return reaches this")
     parser.add_argument("--steps", type=int, default=10, help="the schedule's steps, with --advance-at")
     parser.add_argument("--goal", type=float, default=0.95, help="fraction of episodes that must end at the target")
+    parser.add_argument("--model-based", help="JSON of ModelBasedSettings fields: search in a world model")
     parser.add_argument("--verbose", action="store_true", help="print every measurement of μ")
     args = parser.parse_args()
     torch.set_num_threads(1)

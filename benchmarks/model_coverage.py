@@ -26,8 +26,8 @@ from drrl.envs.batch import RegisteredEnv, make_batch_env
 from drrl.envs.registry import lookup
 from drrl.model_based import build_model, collect, episode_horizon, fitting_settings
 from drrl.models import EpisodeBuffer
-from drrl.models.fit import fit
 from drrl.models.imagined import ImaginedEnv
+from drrl.models.kinds import fit_model
 from drrl.models.quality import k_step_errors
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
@@ -65,7 +65,8 @@ def main() -> None:
     settings = config.model_based
     assert settings is not None
     model = build_model(settings, env, args.seed)
-    fit(model, buffer, fitting_settings(settings.fit_settings(True, entry.reward is None), buffer), seed=args.seed)
+    fitting = fitting_settings(settings.fit_settings(True, entry.reward is None), buffer)
+    fit_model(model, buffer, fitting, seed=args.seed)
     judged, _ = collect(policy, torch.stack([best] * 3), source, args.seed + 1, None)
     errors = k_step_errors(model, EpisodeBuffer(judged), max(HORIZONS))
     print("k-step error on μ*'s real episodes: " + ", ".join(f"k = {k}: {errors[k - 1]:.2f}" for k in HORIZONS))

@@ -116,7 +116,7 @@ def test_an_in_model_search_whose_candidates_all_tie_says_so_and_widens_sigma():
 def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypatch):
     """The second iteration's warm-started fit is made to look a million times worse: the model is fitted again
     from new weights with the first fit's updates, and that fit, far better, is kept and reported."""
-    real_fit, calls, inflated = drrl.model_based.fit, [], []
+    real_fit, calls, inflated = drrl.model_based.fit_model, [], []
 
     def fit(model, buffer, settings, seed):
         reports = real_fit(model, buffer, settings, seed=seed)
@@ -126,7 +126,7 @@ def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypa
             inflated.append(held_out_loss(reports))
         return reports
 
-    monkeypatch.setattr("drrl.model_based.fit", fit)
+    monkeypatch.setattr("drrl.model_based.fit_model", fit)
     model = {**QUICK_MODEL, "fit_updates": 40, "refit_updates": 30, "initial_episodes": 6}
     config = TrainConfig.model_validate(
         dict(popsize=10, episodes_per_candidate=2, budget=8, eval_episodes=5, model_based=model)
@@ -162,10 +162,36 @@ def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
     assert settings.overshoot == 6 and settings.unfold == 2
 
 
+def test_a_model_based_baxter_run_starts_from_the_linear_model_of_its_joints(tmp_path):
+    """Baxter's own model-based defaults: the linear world model, fitted by least squares (no gradient steps), six
+    first real episodes; real steps counted exactly however short the episodes (a 40-step cut here)."""
+    config = TrainConfig.model_validate(
+        {
+            "env": "baxter-reach-right",
+            "model_based": {"generations": 2, "imagined_horizon": 10},
+            "budget": 8,
+            "max_steps": 40,
+            "popsize": 4,
+            "episodes_per_candidate": 2,
+            "eval_episodes": 2,
+        }
+    )
+    assert config.model_based is not None and config.model_based.model_kind == "linear"
+    assert (config.sigma_init, config.fitness_shaping, config.model_based.initial_episodes) == (
+        0.05,
+        "centered_ranks",
+        6,
+    )
+    rows = train(config, tmp_path / "run").rows
+    assert [row["real_episodes"] for row in rows] == [6, 8]
+    assert all(row["fit_updates"] == 0 for row in rows) and rows[-1]["real_steps"] <= 8 * 40
+    assert all(row["imagined_steps"] <= row["imagined_episodes"] * 10 for row in rows)
+
+
 @pytest.mark.parametrize(
     "model_based, message",
     [
-        ({"model_kind": "gru"}, "model_based.model_kind: 'gru' is not one of: rnn, lstm"),
+        ({"model_kind": "gru"}, "model_based.model_kind: 'gru' is not one of: rnn, lstm, linear"),
         ({"overshoot": -1}, "model_based.overshoot: Input should be greater than or equal to 0"),
         ({"hidden": [16, 0]}, "model_based.hidden: every layer width must be in [1, 65536]"),
         ({"ensemble_size": 0}, "model_based.ensemble_size"),
@@ -287,7 +313,7 @@ def test_a_diverging_model_stops_the_run_and_keeps_the_data_and_the_model(tmp_pa
 
     # The checkpoint keeps the last whole iteration, so the model diverges in the second fit (iteration 2): the
     # real episodes and the model of iteration 1 must survive it.
-    fits, real_fit = [], model_based.fit
+    fits, real_fit = [], model_based.fit_model
 
     def fit_then_diverge(*args, **kwargs):
         fits.append(1)
@@ -295,7 +321,7 @@ def test_a_diverging_model_stops_the_run_and_keeps_the_data_and_the_model(tmp_pa
             return real_fit(*args, **kwargs)
         return [FitReport(7, float("nan"), 1.0, 0, "diverged")]
 
-    monkeypatch.setattr(model_based, "fit", fit_then_diverge)
+    monkeypatch.setattr(model_based, "fit_model", fit_then_diverge)
     out = tmp_path / "run"
     result = CliRunner().invoke(
         main,
@@ -328,17 +354,17 @@ def test_a_stopped_model_based_run_resumes_from_the_command_line_to_the_uninterr
     args = ["train", "cartpole", "--model-based", "--budget", "6", "--config", str(tiny_config(tmp_path)), "--quiet"]
     whole = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "whole")])
     assert whole.exit_code == 0 and "done: 3 iterations" in whole.output, whole.output
-    real_fit, fits = model_based.fit, []
+    real_fit, fits = model_based.fit_model, []
 
     def diverge_in_the_third_fit(*args, **kwargs):
         fits.append(1)
         return real_fit(*args, **kwargs) if len(fits) < 3 else [FitReport(7, float("nan"), 1.0, 0, "diverged")]
 
-    monkeypatch.setattr(model_based, "fit", diverge_in_the_third_fit)
+    monkeypatch.setattr(model_based, "fit_model", diverge_in_the_third_fit)
     out = tmp_path / "stopped"
     stopped = CliRunner().invoke(main, [*args, "--out", str(out)])
     assert stopped.exit_code == 1 and f"continue with: drrl train --resume {out}" in stopped.output
-    monkeypatch.setattr(model_based, "fit", real_fit)
+    monkeypatch.setattr(model_based, "fit_model", real_fit)
     resumed = CliRunner().invoke(main, ["train", "--resume", str(out), "--quiet"])
     assert resumed.exit_code == 0, resumed.output
     assert f"resuming {out} at iteration 3 of 3" in resumed.output and "done: 3 iterations" in resumed.output

@@ -15,7 +15,7 @@ from drrl.cli_params import INTEGER
 from drrl.compare import DEFAULT_METHODS, METHODS, MODEL_BASED, PPO, compare, method_config
 from drrl.config import describe_errors, load_config_file
 from drrl.envs.registry import own_entry
-from drrl.models.recurrent import MODEL_KINDS
+from drrl.models.kinds import MODEL_KINDS
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
 COMPARE_BUDGET = 300  # real episodes of a model-free run in a comparison: enough for the cart-pole's PGPE to balance
@@ -47,7 +47,8 @@ def model_based_options(command):
         click.option(
             "--model-kind",
             type=click.Choice(MODEL_KINDS),
-            help=f"world model: state-space RNN (3.4) or LSTM (3.5.2)  [default: {_default('model_kind')}]",
+            help="world model: state-space RNN (3.4), LSTM (3.5.2) or linear, fitted by least squares  "
+            f"[default: {_default('model_kind')}]",
         ),
         click.option(
             "--model-hidden", metavar="W[,W...]", help="widths of the world model's stacked layers  [default: 64]"

@@ -34,10 +34,11 @@ from drrl.config import TrainConfig
 from drrl.envs.batch import RegisteredEnv
 from drrl.envs.registry import EnvEntry
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
+from drrl.models.base import LearnedModel
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, action_size
-from drrl.models.fit import FitReport, FitSettings, fit
+from drrl.models.fit import FitReport, FitSettings
 from drrl.models.imagined import ImaginedWorld
-from drrl.models.recurrent import WorldModel
+from drrl.models.kinds import fit_model, make_model, remake
 from drrl.models.settings import ModelBasedSettings
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload, evaluate
@@ -79,7 +80,7 @@ class ModelBased(World):
         self.config, self.settings, self.policy, self.backend = config, settings, policy, backend
         self.real = RegisteredEnv(entry.env_id, config.engine)
         self.action_space = eval_env.single_action_space
-        self.model = build_model(settings, eval_env, config.seed).to(config.device)
+        self.model = build_model(settings, eval_env, config.seed, config.device)
         self.horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
         if settings.imagined_horizon is not None:  # imagined episodes end sooner than the task's
             self.horizon = min(self.horizon, settings.imagined_horizon)
@@ -123,7 +124,7 @@ class ModelBased(World):
         # 2. the model
         fit_start = time.perf_counter()
         fit_now = fitting_settings(self.settings.fit_settings(iteration == 1, self.known_reward is None), self.buffer)
-        reports = fit(self.model, self.buffer, fit_now, seed=derive_seed(config.seed, iteration, FITTING))
+        reports = fit_model(self.model, self.buffer, fit_now, seed=derive_seed(config.seed, iteration, FITTING))
         if any(report.stop == "diverged" for report in reports):
             raise ModelDiverged(f"iteration {iteration}: the world model's loss turned non-finite")
         previous = counters.rows[-1] if counters.rows else {}
@@ -203,9 +204,9 @@ class ModelBased(World):
         (new data the old weights cannot bend to), and a policy searched in that model fails in reality.
         """
         seed = derive_seed(self.config.seed, iteration, FITTING)
-        fresh = seeded_model(seed, **self.model.settings()).to(self.model.device)
+        fresh = remake(self.model, seed)
         settings = fitting_settings(self.settings.fit_settings(True, self.known_reward is None), self.buffer)
-        fresh_reports = fit(fresh, self.buffer, settings, seed=seed)
+        fresh_reports = fit_model(fresh, self.buffer, settings, seed=seed)
         worse = held_out_loss(fresh_reports) >= held_out_loss(reports)
         if worse or any(report.stop == "diverged" for report in fresh_reports):
             return reports
@@ -271,24 +272,18 @@ def iteration_sizes(budget: int, settings: ModelBasedSettings) -> list[int]:
     return [settings.initial_episodes] + [settings.episodes_per_iteration] * later
 
 
-def build_model(settings: ModelBasedSettings, env: VectorEnv, seed: int) -> WorldModel:
+def build_model(settings: ModelBasedSettings, env: VectorEnv, seed: int, device: str = "cpu") -> LearnedModel:
     """The ensemble of world models ``settings`` describes, for ``env``'s observation and action sizes."""
-    return seeded_model(
-        seed,
+    return make_model(
+        settings.model_kind,
         observation_size=int(np.prod(env.single_observation_space.shape or ())),
         action_size=action_size(env.single_action_space),
         hidden=settings.hidden,
-        kind=settings.model_kind,
         future_inputs=settings.future_inputs,
         members=settings.ensemble_size,
+        seed=seed,
+        device=device,
     )
-
-
-def seeded_model(seed: int, **model_settings) -> WorldModel:
-    """``WorldModel(**model_settings)`` with initial weights drawn from ``seed``, the global generator untouched."""
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        return WorldModel(**model_settings)
 
 
 def episode_horizon(env_id: str, env: VectorEnv) -> int:

@@ -10,7 +10,9 @@ from drrl.models.base import LearnedModel, Prediction
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, Windows
 from drrl.models.fit import MODEL_OPTIMIZERS, FitReport, FitSettings
 from drrl.models.imagined import ImaginedEnv, ImaginedWorld, RewardFunction
-from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS, WorldModel, unfolding_loss, window_losses
+from drrl.models.kinds import MODEL_KINDS
+from drrl.models.linear import LinearModel
+from drrl.models.recurrent import FUTURE_INPUTS, WorldModel, unfolding_loss, window_losses
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
 __all__ = [
@@ -26,6 +28,7 @@ __all__ = [
     "ImaginedEnv",
     "ImaginedWorld",
     "LearnedModel",
+    "LinearModel",
     "ModelBasedSettings",
     "Prediction",
     "RewardFunction",

@@ -26,6 +26,8 @@ class Prediction:
 class LearnedModel(Protocol):
     """A learned model of an environment, stepped in batches (an ``nn.Module``)."""
 
+    change_scale: torch.Tensor  # (K, o): each member's standard deviation of the per-step change, its error unit
+
     @property
     def device(self) -> torch.device:
         """Where the model's weights are."""
@@ -47,6 +49,16 @@ class LearnedModel(Protocol):
         observed: bool | torch.Tensor = True,
     ) -> tuple[Prediction, list[torch.Tensor]]:
         """Every member's prediction of the next step (K, B, ·) for o_t (B, o) and a_t (B, a); the new state."""
+
+    def unfold(
+        self,
+        observations: torch.Tensor,
+        actions: torch.Tensor,
+        observed_steps: int,
+        previous_actions: torch.Tensor | None = None,
+    ) -> Prediction:
+        """Every member's predictions over windows (B, L, ·) of steps, the first ``observed_steps`` reading the data,
+        the rest the model's own predictions; ``previous_actions`` (B, a) came before the windows."""
 
     def disagreement(self, prediction: Prediction) -> torch.Tensor:
         """(B,) how much the members disagree on a prediction; 0 for a single model."""

@@ -46,6 +46,7 @@ class Windows:
     rewards: torch.Tensor  # (W, L)
     ends: torch.Tensor  # (W, L) 1.0 where the episode terminates
     mask: torch.Tensor  # (W, L) 1.0 where the step lies inside its episode
+    previous_actions: torch.Tensor  # (W, a): a_{i−1}, the action before the window (0 at an episode's start)
 
     def __len__(self) -> int:
         return self.actions.shape[0]
@@ -175,6 +176,7 @@ def _episode_windows(episode: Episode, unfold: int, length: int) -> tuple[np.nda
         episode.rewards[inside],
         ends[inside] * mask,
         mask.astype(np.float32),
+        np.concatenate([np.zeros_like(episode.actions[:1]), episode.actions])[starts],
     )
 
 

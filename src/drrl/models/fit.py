@@ -105,7 +105,7 @@ def fit(
     """
     buffer.check_unfolding(settings.unfold, settings.overshoot)
     rng = np.random.default_rng(seed)
-    splits = [_split(buffer, settings, rng) for _ in range(len(model))]
+    splits = [split_episodes(buffer, settings, rng) for _ in range(len(model))]
     scales = [training.scales() for training, _ in splits]
     model.set_scales({name: torch.stack([member[name] for member in scales]) for name in scales[0]})
     windows = buffer.windows(settings.unfold, settings.overshoot).to(model.device)
@@ -217,7 +217,7 @@ def _member_windows(
     return index, weight
 
 
-def _split(
+def split_episodes(
     buffer: EpisodeBuffer, settings: FitSettings, rng: np.random.Generator
 ) -> tuple[EpisodeBuffer, EpisodeBuffer]:
     """Hold out ⌊holdout · E⌋ of the E episodes, among those that can be unfolded and never the longest (training

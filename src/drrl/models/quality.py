@@ -13,19 +13,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from drrl.models.base import LearnedModel
 from drrl.models.data import EpisodeBuffer
 from drrl.models.fit import FitSettings, fit
 from drrl.models.recurrent import WorldModel
 
 
-def k_step_errors(model: WorldModel, episodes: EpisodeBuffer, max_k: int) -> np.ndarray:
+def k_step_errors(model: LearnedModel, episodes: EpisodeBuffer, max_k: int) -> np.ndarray:
     """(max_k,) error of the k-step predicted observation, k = 1..max_k: for every start in ``episodes`` the
     root-mean-square over the observation's entries, in units of each entry's per-step change (the model's
     ``change_scale``); then the median over the members and the starts whose k-th step lies inside their episode.
     The median, because a few starts just before a fall, far from most data, would otherwise decide the mean."""
     windows = episodes.windows(1, max_k - 1).to(model.device)
     with torch.no_grad():
-        prediction = model.unfold(windows.observations, windows.actions, observed_steps=1)
+        prediction = model.unfold(windows.observations, windows.actions, 1, windows.previous_actions)
         error = (
             ((prediction.observations - windows.next_observations) / model.change_scale[:, None, None])
             .square()

@@ -226,9 +226,16 @@ class WorldModel(nn.Module):
         rewards, ends = self._heads(y)
         return Prediction(self._next_observation(observation, y), rewards, ends), new_state
 
-    def unfold(self, observations: torch.Tensor, actions: torch.Tensor, observed_steps: int) -> Prediction:
+    def unfold(
+        self,
+        observations: torch.Tensor,
+        actions: torch.Tensor,
+        observed_steps: int,
+        previous_actions: torch.Tensor | None = None,
+    ) -> Prediction:
         """Unfold over windows of L steps: observations o_0..o_{L−1} (B, L, o), actions a_0..a_{L−1} (B, L, a),
-        the same for every member, or (K, B, L, ·) each member its own.
+        the same for every member, or (K, B, L, ·) each member its own. ``previous_actions``, what came before the
+        windows, is not read: every window starts from the zero state.
 
         Steps t < ``observed_steps`` read o_t from the data; the later ones are the overshooting part and read the
         model's own prediction ô_t (dynamical consistency), never the data. Returns each member's predictions of

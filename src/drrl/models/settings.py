@@ -12,7 +12,8 @@ from __future__ import annotations
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
-from drrl.models.recurrent import FUTURE_INPUTS, MODEL_KINDS
+from drrl.models.kinds import MODEL_KINDS
+from drrl.models.recurrent import FUTURE_INPUTS
 
 REWARD_MODES = ("auto", "known", "learned")
 VALIDATE_EVERY = 100  # gradient steps between two measurements of a fit's held-out loss

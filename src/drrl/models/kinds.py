@@ -1,0 +1,60 @@
+"""The kinds of world model a model-based run can use, each one module behind ``LearnedModel``: how to build one
+and how to fit it to real episodes.
+
+| kind | module | fitted by |
+| --- | --- | --- |
+| "rnn", "lstm" | ``drrl.models.recurrent`` (thesis 3.3–3.5) | back-propagation through time (``drrl.models.fit``) |
+| "linear" | ``drrl.models.linear`` (3.3, identity activation) | least squares (``drrl.models.linear``) |
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from drrl.models.base import LearnedModel
+from drrl.models.data import EpisodeBuffer
+from drrl.models.fit import FitReport, FitSettings, fit
+from drrl.models.linear import LinearModel, fit_linear
+from drrl.models.recurrent import MODEL_KINDS as RECURRENT_KINDS
+from drrl.models.recurrent import WorldModel
+
+MODEL_KINDS = (*RECURRENT_KINDS, "linear")
+
+
+def make_model(
+    kind: str,
+    observation_size: int,
+    action_size: int,
+    hidden: Sequence[int] = (64,),
+    future_inputs: str = "predictions",
+    members: int = 1,
+    seed: int = 0,
+    device: torch.device | str = "cpu",
+) -> LearnedModel:
+    """A world model of ``kind`` on ``device``, its initial weights drawn from ``seed``, the global generator
+    untouched (``hidden`` and ``future_inputs`` shape the recurrent kinds only)."""
+    if kind not in MODEL_KINDS:
+        raise ValueError(f"unknown model kind {kind!r}; choose one of: {', '.join(MODEL_KINDS)}")
+    if kind == "linear":
+        return LinearModel(observation_size, action_size, members).to(device)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return WorldModel(observation_size, action_size, hidden, kind, future_inputs, members).to(device)
+
+
+def remake(model: LearnedModel, seed: int) -> LearnedModel:
+    """A fresh model of ``model``'s kind, shape and device, its initial weights drawn from ``seed``."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        fresh: WorldModel | LinearModel = type(model)(**model.settings())  # type: ignore[assignment]
+    return fresh.to(model.device)
+
+
+def fit_model(model: LearnedModel, buffer: EpisodeBuffer, settings: FitSettings, seed: int = 0) -> list[FitReport]:
+    """Fit ``model`` in place to ``buffer`` as its kind is fitted; a report per member."""
+    if isinstance(model, LinearModel):
+        return fit_linear(model, buffer, settings, seed)
+    assert isinstance(model, WorldModel)
+    return fit(model, buffer, settings, seed)
