@@ -55,12 +55,16 @@ def final_distances(policy: Policy, center: torch.Tensor, env, seed: int) -> tup
     return distance, failed
 
 
+class GoalReached(Exception):
+    """Raised by a probe told to stop the run once the centre reaches the goal."""
+
+
 class ReachProbe(Subscriber):
     """A subscriber of the training loop that, at the start, at every checkpoint and at the end, measures how often
-    the centre policy ends at its target."""
+    the centre policy ends at its target; with ``stop_at`` a fraction, it stops the run once that is reached."""
 
-    def __init__(self, config: TrainConfig, eval_episodes: int, verbose: bool = False):
-        self.seed, self.verbose = config.seed, verbose
+    def __init__(self, config: TrainConfig, eval_episodes: int, verbose: bool = False, stop_at: float | None = None):
+        self.seed, self.verbose, self.stop_at = config.seed, verbose, stop_at
         self.env = make_batch_env(config.env, eval_episodes)
         self.policy = build_policy(config, self.env)
         self.start = time.perf_counter()
@@ -101,6 +105,8 @@ class ReachProbe(Subscriber):
                 f"median distance {row['median_distance']:.3f} m",
                 flush=True,
             )
+        if self.stop_at is not None and self.history[-1]["reached"] >= self.stop_at:
+            raise GoalReached
 
 
 def run_seed(args, seed: int) -> list[dict]:
@@ -123,9 +129,11 @@ def run_seed(args, seed: int) -> list[dict]:
         model_based=json.loads(args.model_based) if args.model_based else None,
     )
     with tempfile.TemporaryDirectory() as folder:
-        probe = ReachProbe(config, args.eval_episodes, args.verbose)
+        probe = ReachProbe(config, args.eval_episodes, args.verbose, args.goal if args.stop_at_goal else None)
         try:  # drrl.train.train's loop and run folder, with the probe told of every checkpoint
             run(prepare(config), [*subscribers(RunFolder(folder), progress=False), probe])
+        except GoalReached:
+            pass
         finally:
             probe.env.close()
     return probe.history
@@ -169,6 +177,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=10, help="the schedule's steps, with --advance-at")
     parser.add_argument("--goal", type=float, default=0.95, help="fraction of episodes that must end at the target")
     parser.add_argument("--model-based", help="JSON of ModelBasedSettings fields: search in a world model")
+    parser.add_argument("--stop-at-goal", action="store_true", help="end a seed's run once μ reaches the goal")
     parser.add_argument("--verbose", action="store_true", help="print every measurement of μ")
     args = parser.parse_args()
     torch.set_num_threads(1)

@@ -94,6 +94,12 @@ def main(ctx: click.Context, debug: bool) -> None:
 )
 @setting("seed", INTEGER, "random seed")
 @setting("checkpoint_every", INTEGER, "generations between checkpoints")
+@setting(
+    "start_from",
+    click.Path(exists=True, file_okay=False),
+    "a run folder whose best measured policy (and world model) this run starts from, e.g. one trained in the "
+    "simulator for a run on the robot",
+)
 @click.option(
     "--config",
     "config_file",

@@ -138,6 +138,12 @@ class TrainConfig(BaseModel):
     )
     model_based: ModelBasedSettings | None = Field(None, description="set: model-based PGPE (drrl.model_based)")
     env_schedule: EnvSchedule | None = Field(None, description="a curriculum on one env option (model-free)")
+    start_from: str | None = Field(
+        None,
+        max_length=4096,
+        description="a run folder whose best measured policy, and world model, this run starts from: transfer, "
+        "e.g. from the simulator to a robot (the policy and spaces must be the same)",
+    )
 
     @field_validator(*CHOICES)
     @classmethod
@@ -196,6 +202,10 @@ class TrainConfig(BaseModel):
         if self.model_based is not None and self.observation_norm:
             raise ValueError(
                 "observation_norm is for model-free runs; a model-based run's model normalises its own inputs"
+            )
+        if self.start_from is not None and self.observation_norm:
+            raise ValueError(
+                "start_from gives a policy that reads raw observations; set observation_norm to false with it"
             )
         if self.model_based is not None and self.env_schedule is not None:
             raise ValueError("env_schedule is for model-free runs; a model-based run learns the env as registered")

@@ -64,7 +64,15 @@ class ModelBased(World):
     kind, unit = "model-based", "iteration"
     training = "real episodes collected, mean"
 
-    def __init__(self, config: TrainConfig, entry: EnvEntry, policy: Policy, eval_env: VectorEnv, backend: Backend):
+    def __init__(
+        self,
+        config: TrainConfig,
+        entry: EnvEntry,
+        policy: Policy,
+        eval_env: VectorEnv,
+        backend: Backend,
+        model: dict[str, torch.Tensor] | None = None,
+    ):
         settings = config.model_based
         if settings is None:
             raise ValueError("a model-based run needs model_based settings")
@@ -81,6 +89,8 @@ class ModelBased(World):
         self.real = RegisteredEnv(entry.env_id, config.engine)
         self.action_space = eval_env.single_action_space
         self.model = build_model(settings, eval_env, config.seed, config.device)
+        if model is not None:  # another run's model to fine-tune (``drrl.train.transferred``)
+            self.model.load_state_dict({name: tensor.to(config.device) for name, tensor in model.items()})
         self.horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
         if settings.imagined_horizon is not None:  # imagined episodes end sooner than the task's
             self.horizon = min(self.horizon, settings.imagined_horizon)
@@ -110,9 +120,9 @@ class ModelBased(World):
         """Collect, fit, search in the model (module docstring); the iteration's metrics row."""
         config, search = self.config, setup.search
         assert isinstance(search, Search)
-        # 1. real episodes: the centre and explorers (only explorers before the model has informed μ)
+        # 1. real episodes: the centre and explorers (only explorers before a model has informed μ)
         count = self.sizes[iteration - 1]
-        params = exploring_policies(search, count, with_center=iteration > 1)
+        params = exploring_policies(search, count, with_center=iteration > 1 or self.config.start_from is not None)
         if self.settings.exploration_bonus and iteration > 1:
             params = torch.cat([params[:1], self.optimistic_explorers(search, count - 1, counters, iteration)])
         episodes, real = collect(

@@ -11,6 +11,7 @@ metrics of an uninterrupted run.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -23,6 +24,7 @@ from drrl.envs.registry import is_own, lookup
 from drrl.loop import Counters, Learner, Setup, Subscriber, World, check_checkpoint, restore, run
 from drrl.model_based import ModelBased
 from drrl.model_free import ModelFree
+from drrl.models.settings import ModelBasedSettings
 from drrl.policies import Policy, make_policy
 from drrl.policy_gradient import POLICY_GRADIENTS, make_policy_gradient
 from drrl.rollout import Workload, make_backend
@@ -38,10 +40,12 @@ def build_policy(config: TrainConfig, env) -> Policy:
     )
 
 
-def build_search(config: TrainConfig, policy: Policy, discrete: bool) -> Learner:
-    """The search over the policy's parameters, or the action-space policy gradient, that ``config`` names."""
-    generator = torch.Generator().manual_seed(config.seed)
-    center = policy.initial_center(generator).to(config.device)
+def build_search(config: TrainConfig, policy: Policy, discrete: bool, center: torch.Tensor | None = None) -> Learner:
+    """The search over the policy's parameters, or the action-space policy gradient, that ``config`` names, from
+    ``center`` or the policy's own initial centre."""
+    if center is None:
+        center = policy.initial_center(torch.Generator().manual_seed(config.seed))
+    center = center.to(config.device)
     if config.search in POLICY_GRADIENTS:
         return make_policy_gradient(
             config.search,
@@ -110,16 +114,21 @@ def resolved(config: TrainConfig, env_id: str) -> TrainConfig:
     return config.model_copy(
         update={
             "engine": choose_engine(env_id, config.engine, with_options=config.env_schedule is not None),
-            "observation_norm": (not is_own(env_id) and searching) if norm is None else norm,
+            "observation_norm": (not is_own(env_id) and searching and not config.start_from) if norm is None else norm,
         }
     )
 
 
 def prepare(
-    config: TrainConfig, backend: str = "local", address: str | None = None, workers: int | None = None
+    config: TrainConfig,
+    backend: str = "local",
+    address: str | None = None,
+    workers: int | None = None,
+    resuming: bool = False,
 ) -> Setup:
     """Build envs, policy, search, world and backend; bad names, settings or unsupported spaces raise ValueError
-    here, before any work."""
+    here, before any work. A new run (not ``resuming``) with ``config.start_from`` starts from that run's policy and
+    world model (``transferred``)."""
     entry = lookup(config.env)
     if config.search in POLICY_GRADIENTS and backend != "local":
         raise ValueError(f"search {config.search} runs its episodes here; use the local backend (--backend local)")
@@ -131,11 +140,13 @@ def prepare(
         policy = build_policy(config, probe)
         discrete = isinstance(probe.single_action_space, spaces.Discrete)
         check_memory(config, policy)
+        spaces_here = (probe.single_observation_space, probe.single_action_space)
+        start = transferred(config, policy, spaces_here) if config.start_from and not resuming else Transfer()
     finally:
         probe.close()
     eval_env = make_batch_env(entry.env_id, config.eval_episodes, config.engine)
     try:
-        search = build_search(config, policy, discrete)
+        search = build_search(config, policy, discrete, start.center)
         workload = Workload(
             policy,
             RegisteredEnv(entry.env_id, config.engine),
@@ -150,7 +161,7 @@ def prepare(
         raise
     try:
         if config.model_based:
-            world: World = ModelBased(config, entry, policy, eval_env, evaluator)
+            world: World = ModelBased(config, entry, policy, eval_env, evaluator, start.model)
         elif isinstance(evaluator, LocalBackend) and config.search in POLICY_GRADIENTS:
             world = ActionSpace(config, policy, evaluator, workload)
         else:
@@ -174,7 +185,7 @@ def prepare_resume(
     folder.claim()
     try:
         config, checkpoint = folder.load_run()
-        setup = prepare(config, backend, address, workers)
+        setup = prepare(config, backend, address, workers, resuming=True)
     except BaseException:
         folder.release()
         raise
@@ -186,6 +197,43 @@ def prepare_resume(
         folder.release()
         raise
     return setup, counters
+
+
+@dataclass(frozen=True)
+class Transfer:
+    """What a run starts from instead of its own initial state: another run's policy weights and world model."""
+
+    center: torch.Tensor | None = None
+    model: dict[str, torch.Tensor] | None = None
+
+
+def transferred(config: TrainConfig, policy: Policy, spaces_here: SpacePair) -> Transfer:
+    """The best measured centre of the run in ``config.start_from`` and, where both runs are model-based with world
+    models of one kind and shape, its model: transfer (thesis 6.2), e.g. a policy and model learned in the simulator
+    carried to a robot, where a few real episodes fine-tune the model and the search goes on inside it.
+
+    Refused in one line: a folder that is not a finished or stopped run, another policy, other spaces."""
+    folder = RunFolder(Path(str(config.start_from)))
+    source, checkpoint = open_run(folder)
+    if source.policy != config.policy:
+        raise ValueError(f"start_from: {folder.path} trained a {source.policy} policy, this run's is {config.policy}")
+    if source.observation_norm:
+        raise ValueError(f"start_from: {folder.path}'s policy reads normalised observations; start from a run without")
+    probe = make_batch_env(lookup(source.env).env_id, 1, source.engine)
+    try:
+        there = (probe.single_observation_space, probe.single_action_space)
+        check_same_spaces(source.env, there, config.env, spaces_here)
+    finally:
+        probe.close()
+    model = None
+    if source.model_based and config.model_based and same_model(source.model_based, config.model_based):
+        model = checkpoint["world"]["model"]
+    return Transfer(trained_center(checkpoint, policy), model)
+
+
+def same_model(a: ModelBasedSettings, b: ModelBasedSettings) -> bool:
+    """Whether two runs' world models have one kind and shape."""
+    return all(getattr(a, name) == getattr(b, name) for name in ("model_kind", "hidden", "ensemble_size"))
 
 
 def world_kind(config: TrainConfig) -> str:
