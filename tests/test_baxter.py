@@ -325,6 +325,18 @@ def test_the_tie_break_ranks_episodes_that_never_reach_by_their_distance():
     assert lookup("baxter-reach-right").reward(observation, steps)[0] == pytest.approx(broken)
 
 
+def test_imagined_rewards_cost_the_joints_speeds_so_that_a_reach_ends_at_rest():
+    env = BaxterReachVectorEnv(1, arms=("right",))
+    observation, _ = env.reset(seed=0)
+    turning = observation.copy()
+    turning[:, 7:14] = [[0.5, 0, 0, 0, 0, 0, -0.25]]  # fractions of the joints' velocity limits
+    steps = np.ones(1)
+    still, _ = env.task.observed_reward(observation, steps, tie_break=0.1, stillness=0.1)
+    moving, _ = env.task.observed_reward(turning, steps, tie_break=0.1, stillness=0.1)
+    assert moving[0] == pytest.approx(still[0] - 0.1 * 0.75)
+    assert lookup("baxter-reach-right").reward(turning, steps)[0] == pytest.approx(moving)
+
+
 def test_running_into_a_joint_limit_fails_the_episode():
     env = BaxterReachVectorEnv(1, arms=("right",))
     env.reset(seed=0)

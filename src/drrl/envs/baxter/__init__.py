@@ -18,7 +18,7 @@ from functools import partial
 from typing import Any
 
 from drrl.envs.baxter.model import SIDES
-from drrl.envs.baxter.task import TIE_BREAK, ReachTask, explain_reach, reach_verdict
+from drrl.envs.baxter.task import STILLNESS, TIE_BREAK, ReachTask, explain_reach, reach_verdict
 from drrl.envs.registry import EnvEntry, register
 
 ENVIRONMENTS: dict[
@@ -71,7 +71,7 @@ for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
         EnvEntry(
             _env_id,
             _alias,
-            reward=partial(_task.observed_reward, tie_break=TIE_BREAK),
+            reward=partial(_task.observed_reward, tie_break=TIE_BREAK, stillness=STILLNESS),
             complete_observation=_task.complete_observation,
             model_based_defaults=MODEL_BASED_SETTINGS,
             **_judged,
