@@ -91,9 +91,8 @@ class ModelBased(World):
         self.model = build_model(settings, eval_env, config.seed, config.device)
         if model is not None:  # another run's model to fine-tune (``drrl.train.transferred``)
             self.model.load_state_dict({name: tensor.to(config.device) for name, tensor in model.items()})
-        self.horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
-        if settings.imagined_horizon is not None:  # imagined episodes end sooner than the task's
-            self.horizon = min(self.horizon, settings.imagined_horizon)
+        self.real_horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
+        self.horizon = min(self.real_horizon, settings.imagined_horizon or self.real_horizon)  # the search's
         known = settings.reward in ("auto", "known")
         self.known_reward = entry.reward if known else None
         self.complete_observation = entry.complete_observation if known else None
@@ -153,8 +152,10 @@ class ModelBased(World):
         )
         generations, tied = self.search_in_model(search, counters, iteration)
         search_end = time.perf_counter()
-        # the centre in the model (the loop measures it in reality)
-        env = imagined.make(config.episodes_per_generation)
+        # the centre in the model, as long as a real episode (the loop measures it in reality)
+        env = self.imagined_world(self.settings.disagreement_penalty, self.real_horizon).make(
+            config.episodes_per_generation
+        )
         in_model = evaluate(
             self.policy, search.center[None], env, env.num_envs, seed=derive_seed(config.seed, iteration, IMAGINING)
         )
@@ -194,13 +195,14 @@ class ModelBased(World):
         counters.imagined_steps += evaluation.steps
         return candidates[torch.argsort(evaluation.returns, descending=True, stable=True)[:count]]
 
-    def imagined_world(self, disagreement_penalty: float) -> ImaginedWorld:
-        """The current model as imagined episodes from the real start states so far."""
+    def imagined_world(self, disagreement_penalty: float, horizon: int | None = None) -> ImaginedWorld:
+        """The current model as imagined episodes from the real start states so far, ``horizon`` steps long (the
+        search's horizon unless given)."""
         return ImaginedWorld.of(
             self.model,
             self.buffer.start_observations(),
             self.action_space,
-            self.horizon,
+            horizon or self.horizon,
             self.known_reward,
             disagreement_penalty,
             self.complete_observation,
