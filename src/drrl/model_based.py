@@ -71,7 +71,7 @@ class ModelBased(World):
         policy: Policy,
         eval_env: VectorEnv,
         backend: Backend,
-        model: dict[str, torch.Tensor] | None = None,
+        start_model: dict[str, torch.Tensor] | None = None,
     ):
         settings = config.model_based
         if settings is None:
@@ -89,8 +89,8 @@ class ModelBased(World):
         self.real = RegisteredEnv(entry.env_id, config.engine)
         self.action_space = eval_env.single_action_space
         self.model = build_model(settings, eval_env, config.seed, config.device)
-        if model is not None:  # another run's model to fine-tune (``drrl.train.transferred``)
-            self.model.load_state_dict({name: tensor.to(config.device) for name, tensor in model.items()})
+        if start_model is not None:  # another run's model to fine-tune (``drrl.train.transferred``)
+            self.model.load_state_dict({name: tensor.to(config.device) for name, tensor in start_model.items()})
         self.real_horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
         self.horizon = min(self.real_horizon, settings.imagined_horizon or self.real_horizon)  # the search's
         known = settings.reward in ("auto", "known")

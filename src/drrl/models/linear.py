@@ -20,6 +20,8 @@ every other. Where the dynamics are nonlinear (the cart-pole's pole) the recurre
 
 Fitting (``fit_linear``) is ridge regression of the one-step targets on the features, exact and instant, where
 the recurrent models need thousands of gradient steps; each member of an ensemble is fitted on its own episodes.
+A run started from another's model (``start_from``) identifies it again from its own episodes: a few hundred steps
+pin its weights down, where a recurrent model is fine-tuned from the weights it was given.
 
 Departures from the thesis, and why
     * 3.3's state-space model feeds its own state back through a nonlinearity and reads the observation off it;
