@@ -66,3 +66,16 @@ class LearnedModel(Protocol):
     def state_dict(self) -> dict[str, torch.Tensor]: ...
 
     def load_state_dict(self, state: dict[str, torch.Tensor]): ...
+
+
+def per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """Per-member ``values`` (K, *v) shaped to broadcast against ``like`` (K, …, *v)."""
+    return values.reshape(values.shape[0], *[1] * (like.dim() - values.dim()), *values.shape[1:])
+
+
+def spread(prediction: Prediction, change_scale: torch.Tensor) -> torch.Tensor:
+    """(B,) the members' disagreement: the standard deviation over members of the predicted observation, in units of
+    the data's per-step change ``change_scale`` (K, o), averaged over the observation's entries; 0 for one member."""
+    if len(change_scale) == 1:
+        return torch.zeros(prediction.observations.shape[1], device=prediction.observations.device)
+    return (prediction.observations / change_scale.mean(0)).std(dim=0).mean(dim=-1)

@@ -39,7 +39,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from drrl.models.base import Prediction
+from drrl.models.base import Prediction, per_member, spread
 from drrl.models.data import EpisodeBuffer
 from drrl.models.fit import FitReport, FitSettings, split_episodes
 from drrl.models.recurrent import window_losses
@@ -104,10 +104,10 @@ class LinearModel(nn.Module):
         """x_t (K, …, f) of o_t, a_t and a_{t−1}, each (K, …, ·)."""
         return torch.cat(
             [
-                (observation - _per_member(self.observation_mean, observation))
-                / _per_member(self.observation_scale, observation),
-                (action - _per_member(self.action_mean, action)) / _per_member(self.action_scale, action),
-                (previous - _per_member(self.action_mean, previous)) / _per_member(self.action_scale, previous),
+                (observation - per_member(self.observation_mean, observation))
+                / per_member(self.observation_scale, observation),
+                (action - per_member(self.action_mean, action)) / per_member(self.action_scale, action),
+                (previous - per_member(self.action_mean, previous)) / per_member(self.action_scale, previous),
                 torch.ones_like(observation[..., :1]),
             ],
             dim=-1,
@@ -155,16 +155,14 @@ class LinearModel(nn.Module):
 
     def disagreement(self, prediction: Prediction) -> torch.Tensor:
         """(B,) the members' spread, as ``WorldModel.disagreement``; 0 for a single member."""
-        if self.members == 1:
-            return torch.zeros(prediction.observations.shape[1], device=prediction.observations.device)
-        return (prediction.observations / self.change_scale.mean(0)).std(dim=0).mean(dim=-1)
+        return spread(prediction, self.change_scale)
 
     def describe(self) -> str:
         return f"linear, previous action as memory, {self.members} member(s)"
 
     def _prediction(self, observation: torch.Tensor, y: torch.Tensor) -> Prediction:
-        change = y[..., :-2] * _per_member(self.change_scale, observation)
-        reward = y[..., -2] * _per_member(self.reward_scale, y[..., -2]) + _per_member(self.reward_mean, y[..., -2])
+        change = y[..., :-2] * per_member(self.change_scale, observation)
+        reward = y[..., -2] * per_member(self.reward_scale, y[..., -2]) + per_member(self.reward_mean, y[..., -2])
         return Prediction(observation + change, reward, y[..., -1].clamp(0.0, 1.0))
 
     def _per_member_inputs(self, tensor: torch.Tensor) -> torch.Tensor:
@@ -266,8 +264,3 @@ def _loss(model: LinearModel, k: int, episodes: EpisodeBuffer, settings: FitSett
             settings.learn_reward,
         )
     return float(losses.mean())
-
-
-def _per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
-    """Per-member ``values`` (K, *v) shaped to broadcast against ``like`` (K, …, *v)."""
-    return values.reshape(values.shape[0], *[1] * (like.dim() - values.dim()), *values.shape[1:])

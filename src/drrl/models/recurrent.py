@@ -55,7 +55,7 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import nn
 
-from drrl.models.base import Prediction
+from drrl.models.base import Prediction, per_member, spread
 from drrl.policies.recurrent import elman_cell
 
 MODEL_KINDS = ("rnn", "lstm")
@@ -177,19 +177,19 @@ class WorldModel(nn.Module):
         return torch.baddbmm(self.readout_bias, x, self.readout_weight), new_state
 
     def _normalise(self, observation: torch.Tensor) -> torch.Tensor:
-        return (observation - _per_member(self.observation_mean, observation)) / _per_member(
+        return (observation - per_member(self.observation_mean, observation)) / per_member(
             self.observation_scale, observation
         )
 
     def _next_observation(self, observation: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         change = y[..., :-2]
-        return observation + change * _per_member(self.change_scale, change)
+        return observation + change * per_member(self.change_scale, change)
 
     def _heads(self, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Reward and end probability from read-outs y."""
         reward = y[..., -2]
         return (
-            reward * _per_member(self.reward_scale, reward) + _per_member(self.reward_mean, reward),
+            reward * per_member(self.reward_scale, reward) + per_member(self.reward_mean, reward),
             torch.sigmoid(y[..., -1]),
         )
 
@@ -274,10 +274,7 @@ class WorldModel(nn.Module):
     def disagreement(self, prediction: Prediction) -> torch.Tensor:
         """(B,) the members' spread: the standard deviation over members of the predicted observation, in units of
         the data's per-step change, averaged over the observation's entries; 0 for a single member."""
-        if self.members == 1:
-            return torch.zeros(prediction.observations.shape[1], device=prediction.observations.device)
-        scale = self.change_scale.mean(0)
-        return (prediction.observations / scale).std(dim=0).mean(dim=-1)
+        return spread(prediction, self.change_scale)
 
     def describe(self) -> str:
         layers = "×".join(map(str, self.hidden))
@@ -301,12 +298,12 @@ def window_losses(
     heads are not trained. The targets are (B, L, ·), the same for every member, or (K, B, L, ·).
     """
     error = (
-        ((prediction.observations - next_observations) / _per_member(model.change_scale, prediction.observations))
+        ((prediction.observations - next_observations) / per_member(model.change_scale, prediction.observations))
         .square()
         .sum(-1)
     )
     if learn_reward:
-        error = error + ((prediction.rewards - rewards) / _per_member(model.reward_scale, prediction.rewards)).square()
+        error = error + ((prediction.rewards - rewards) / per_member(model.reward_scale, prediction.rewards)).square()
         error = error + (prediction.ends - ends).square()
     return (error * mask).sum(-1)
 
@@ -327,8 +324,3 @@ def unfolding_loss(
 def _uniform(members: int, rows: int, columns: int, width: int) -> nn.Parameter:
     bound = 1.0 / math.sqrt(width)
     return nn.Parameter(torch.empty(members, rows, columns).uniform_(-bound, bound))
-
-
-def _per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
-    """Per-member ``values`` (K, *v) shaped to broadcast against ``like`` (K, …, *v)."""
-    return values.reshape(values.shape[0], *[1] * (like.dim() - values.dim()), *values.shape[1:])
