@@ -41,12 +41,24 @@ def test_a_run_starts_from_the_best_policy_and_the_world_model_of_another(source
         fresh.close()
 
 
-def test_a_transferred_run_tries_the_policy_it_was_given_in_its_first_real_episodes(source):
-    out, _ = source
-    rows = train(TrainConfig.model_validate({**SOURCE, "seed": 5, "start_from": str(out)})).rows
-    given = train(TrainConfig.model_validate({**SOURCE, "seed": 5})).rows
-    assert rows[0]["real_episodes"] == given[0]["real_episodes"] == 2
-    assert rows[0]["mean_return"] != given[0]["mean_return"]
+def test_a_transferred_run_tries_the_policy_it_was_given_in_its_first_real_episodes(source, monkeypatch):
+    """A fresh run's first real episodes are explorers only (its μ is uninformed); a transferred run's start with μ."""
+    import drrl.model_based as model_based
+
+    out, checkpoint = source
+    tried, collect = [], model_based.collect
+
+    def recorded(policy, params, *args):
+        tried.append(params.clone())
+        return collect(policy, params, *args)
+
+    monkeypatch.setattr(model_based, "collect", recorded)
+    train(TrainConfig.model_validate({**SOURCE, "seed": 5, "start_from": str(out)}))
+    train(TrainConfig.model_validate({**SOURCE, "seed": 5}))
+    transferred_first, fresh_first = tried[0], tried[len(tried) // 2]
+    torch.testing.assert_close(transferred_first[0], checkpoint["best_center"])
+    assert not torch.isclose(transferred_first[1:], checkpoint["best_center"]).all(dim=1).any()
+    assert not (fresh_first == 0).all(dim=1).any()  # the fresh run's μ = 0 is not among its first episodes
 
 
 def test_a_model_free_run_starts_from_a_model_based_runs_policy(source):
