@@ -192,6 +192,15 @@ def test_a_model_based_baxter_run_starts_from_the_linear_model_of_its_joints(tmp
 
 
 @pytest.mark.parametrize(
+    "env, first, popsize, budget", [("baxter-reach-right", 6, 20, 30), ("baxter-reach", 12, 60, 50)]
+)
+def test_model_based_runs_on_both_arms_start_from_more_episodes_and_candidates(env, first, popsize, budget):
+    config = TrainConfig.model_validate({"env": env, "model_based": {}})
+    assert config.model_based is not None
+    assert (config.model_based.initial_episodes, config.popsize, config.budget) == (first, popsize, budget)
+
+
+@pytest.mark.parametrize(
     "model_based, message",
     [
         ({"model_kind": "gru"}, "model_based.model_kind: 'gru' is not one of: rnn, lstm, linear"),
