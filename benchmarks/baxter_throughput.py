@@ -9,7 +9,10 @@ Side by side, on the same cores and threads, from the same start states, interle
 - raw mj_step a control period a call: the same batch asked for 5 physics steps S times, as the env asks it (with
   the env's stages computed after each call), with nothing else between the calls. What it loses against one call
   is MuJoCo's cost of stepping closed-loop (each call visits every simulation's data again, and waits for its
-  threads); what the env loses against it is drrl's own work.
+  threads); what the env loses against it is drrl's own work, and what that work's pause costs MuJoCo's threads;
+- raw mj_step a control period a call with a pause: the same, with ``--pause-us`` microseconds of busy waiting
+  between calls, about as long as drrl's own work a step: what a pause between calls costs MuJoCo itself (its
+  thread pool's threads go idle and must be woken).
 
 Both count physics steps per second: the median over repeats and, in brackets, the best, which on a shared machine
 is the closer estimate of what the code can do. Physics steps per process CPU-second are reported too. Restrict
@@ -44,6 +47,7 @@ def main() -> None:
     parser.add_argument("--num-envs", type=int, default=100)
     parser.add_argument("--steps", type=int, default=200, help="control steps per measurement")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--pause-us", type=float, default=500.0, help="busy pause between calls of the last row")
     args = parser.parse_args()
     torch.set_num_threads(1)  # the physics gets the cores
 
@@ -65,13 +69,24 @@ def main() -> None:
         for _ in range(args.steps):
             sims.batch.step(nstep=sims.substeps, stage=sims.stage)
 
-    env_times, raw_times, period_times = [], [], []
+    def raw_per_period_paused() -> None:
+        for _ in range(args.steps):
+            pause_until = time.perf_counter() + args.pause_us * 1e-6
+            while time.perf_counter() < pause_until:
+                pass
+            sims.batch.step(nstep=sims.substeps, stage=sims.stage)
+
+    env_times, raw_times, period_times, paused_times = [], [], [], []
     for _ in range(args.repeats):
         env_times.append(timed(with_policy))
         env.reset(seed=0)  # the same start states, at rest
         raw_times.append(timed(raw))
         env.reset(seed=0)
         period_times.append(timed(raw_per_period))
+        env.reset(seed=0)
+        paused_times.append(timed(raw_per_period_paused))
+    pause = args.steps * args.pause_us * 1e-6  # not MuJoCo's time: taken off the paused row's wall and CPU times
+    paused_times = [(wall - pause, cpu - pause) for wall, cpu in paused_times]
     print(
         f"{args.env}: {args.num_envs} envs × {args.steps} control steps × {sims.substeps} physics steps, "
         f"{sims.batch.nthread} MuJoCo threads, {args.repeats} interleaved repeats"
@@ -82,6 +97,7 @@ def main() -> None:
         ("batched env + linear policy", env_times),
         ("raw mj_step, same batch", raw_times),
         ("raw mj_step, a control period a call", period_times),
+        (f"raw mj_step, a control period a call, {args.pause_us:.0f} µs pauses (not counted)", paused_times),
     )
     for name, times in rows:
         walls, cpus = [wall for wall, _ in times], [cpu for _, cpu in times]
@@ -89,7 +105,12 @@ def main() -> None:
             f"| {name} | {physics_steps / statistics.median(walls):,.0f} ({physics_steps / min(walls):,.0f}) | "
             f"{physics_steps / statistics.median(cpus):,.0f} |"
         )
-    for name, times in (("env / raw", raw_times), ("env / raw a control period a call", period_times)):
+    ratios = (
+        ("env / raw", raw_times),
+        ("env / raw a control period a call", period_times),
+        ("env / raw a control period a call with pauses", paused_times),
+    )
+    for name, times in ratios:
         wall, best, cpu = ratio(times, env_times, 0), ratio(times, env_times, 0, min), ratio(times, env_times, 1)
         print(f"| {name} | {wall} ({best}) | {cpu} |")
 
