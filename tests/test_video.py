@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 
 import gymnasium as gym
@@ -58,3 +60,21 @@ def test_render_of_an_env_that_needs_pygame_says_what_to_install(tmp_path, monke
     result = CliRunner().invoke(main, ["render", str(out), "--out", str(tmp_path / "x.gif")])
     assert result.exit_code == 1 and 'pip install "gymnasium[classic_control]"' in result.output, result.output
     assert "Traceback" not in result.output and not (tmp_path / "x.gif").exists()
+
+
+def test_render_of_a_pygame_env_is_headless_and_quiet(tmp_path):
+    """Gymnasium's pygame envs draw in memory: no display session is needed, and SDL is not let complain of one."""
+    pytest.importorskip("pygame", reason="gymnasium[classic_control] is not installed")
+    drrl = [sys.executable, "-c", "from drrl.cli import main; main()"]
+    env = {k: v for k, v in os.environ.items() if k not in ("XDG_RUNTIME_DIR", "SDL_VIDEODRIVER", "DISPLAY")}
+    train = ["train", "--env", "Pendulum-v1", "--budget", "16", "--eval-episodes", "2", "--quiet", "--out", "run"]
+    subprocess.run([*drrl, *train], cwd=tmp_path, env=env, check=True, capture_output=True)
+    render = subprocess.run(
+        [*drrl, "render", "run", "--max-steps", "4", "--out", "x.gif"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert render.returncode == 0 and (tmp_path / "x.gif").exists(), render.stderr
+    assert "XDG_RUNTIME_DIR" not in render.stderr and "error" not in render.stderr.lower(), render.stderr

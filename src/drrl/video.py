@@ -8,6 +8,7 @@ own ffmpeg binary.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -177,6 +178,8 @@ def _rendering_env(env_id: str, env_options: dict[str, Any]) -> gymnasium.Env:
     """``env_id`` made to draw rgb_array frames headless with ``env_options``; a ValueError saying why it cannot."""
     if ".mujoco" in str(gymnasium.spec(env_id).entry_point):
         import_mujoco()  # a headless OpenGL unless MUJOCO_GL says otherwise, before Gymnasium imports MuJoCo
+    # pygame's envs draw on surfaces in memory: no window, and no SDL complaint about a missing display session
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     try:
         return gymnasium.make(env_id, render_mode="rgb_array", **env_options)
     except TypeError as error:  # an option this env does not take, e.g. shadows for the cart-pole
