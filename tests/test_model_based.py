@@ -502,3 +502,26 @@ def test_model_based_runs_on_a_discrete_action_space_with_one_hot_actions(one_th
     actions = np.concatenate([episode.actions for episode in setup.world.buffer.episodes])
     assert counters.real_episodes == 4 and actions.shape[1] == 2 and (actions.sum(1) == 1).all()
     assert counters.imagined_episodes > 0
+
+
+def test_gymnasiums_cartpole_reward_and_end_in_closed_form_are_gymnasiums_own():
+    """Imagined CartPole episodes end as real ones do: 1 a step, the falling one included, over 50 random episodes."""
+    import gymnasium
+
+    from drrl.envs.registry import lookup
+
+    reward = lookup("CartPole-v1").reward
+    assert reward is not None
+    env = gymnasium.make("CartPole-v1")
+    env.action_space.seed(0)
+    ends = 0
+    for episode in range(50):
+        env.reset(seed=episode)
+        step, done = 0, False
+        while not done:
+            observation, real_reward, terminated, truncated, _ = env.step(env.action_space.sample())
+            step += 1
+            rewards, ended = reward(observation[None], np.array([step]))
+            assert (rewards[0], bool(ended[0])) == (real_reward, terminated), (episode, step)
+            ends, done = ends + terminated, terminated or truncated
+    assert ends == 50  # random pushes let every pole fall

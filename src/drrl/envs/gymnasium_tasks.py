@@ -1,8 +1,14 @@
 """What drrl knows of some of Gymnasium's own tasks beyond their specs: the return usually counted as solved where
-Gymnasium gives none, and settings measured to reach it where drrl's defaults for Gymnasium's envs do not
-(BENCHMARKS.md, "Gymnasium's envs with drrl's defaults")."""
+Gymnasium gives none, settings measured to reach it where drrl's defaults for Gymnasium's envs do not
+(BENCHMARKS.md, "Gymnasium's envs with drrl's defaults"), and rewards and ends in closed form of the next
+observation, which a model-based run's imagined episodes use instead of learning them (as model-based libraries
+give a task's termination function: a learned end head sees a fall only once an episode)."""
 
 from __future__ import annotations
+
+import math
+
+import numpy as np
 
 SOLVED_LEVELS = {"Pendulum-v1": -200.0}  # Pendulum-v1's spec has no reward_threshold
 
@@ -18,3 +24,14 @@ SUGGESTED = {
         "budget": 51200,
     },
 }
+
+
+def cartpole_reward(next_observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gymnasium's CartPole (classic_control/cartpole.py): a reward of 1 every step, the falling one included; the
+    episode ends once the cart (observation 0) leaves ±2.4 m or the pole (observation 2) tilts beyond ±12°."""
+    x, theta = next_observations[:, 0], next_observations[:, 2]
+    fallen = (np.abs(x) > 2.4) | (np.abs(theta) > 12 * 2 * math.pi / 360)
+    return np.ones(len(next_observations)), fallen
+
+
+REWARDS = {"CartPole-v0": cartpole_reward, "CartPole-v1": cartpole_reward}

@@ -21,7 +21,7 @@ import gymnasium
 import numpy as np
 import torch
 
-from drrl.envs.gymnasium_tasks import SOLVED_LEVELS, SUGGESTED
+from drrl.envs.gymnasium_tasks import REWARDS, SOLVED_LEVELS, SUGGESTED
 
 # (episode_returns (P, E), terminated (P, E)) -> {criterion: met}
 Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
@@ -120,11 +120,12 @@ def lookup(name: str) -> EnvEntry:
 
 def gymnasium_entry(env_id: str) -> EnvEntry:
     """The entry of a Gymnasium env drrl has no module for: solved at its spec's ``reward_threshold`` (or the usual
-    level), if there is one, with the settings known to reach it."""
+    level), if there is one, with the settings known to reach it and its reward in closed form where drrl knows
+    it."""
     threshold = gymnasium.spec(env_id).reward_threshold
     threshold = SOLVED_LEVELS.get(env_id) if threshold is None else threshold
     if threshold is None:
-        return EnvEntry(env_id)
+        return EnvEntry(env_id, reward=REWARDS.get(env_id))
 
     def verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) -> dict[str, bool]:
         return {"solved": bool(episode_returns.mean() >= threshold)}
@@ -132,4 +133,6 @@ def gymnasium_entry(env_id: str) -> EnvEntry:
     def explain(episode_returns: torch.Tensor, terminated: torch.Tensor) -> str:
         return f"({env_id} counts as solved at a mean return ≥ {threshold:g})"
 
-    return EnvEntry(env_id, verdict=verdict, explain=explain, suggested=SUGGESTED.get(env_id, {}))
+    return EnvEntry(
+        env_id, verdict=verdict, explain=explain, reward=REWARDS.get(env_id), suggested=SUGGESTED.get(env_id, {})
+    )
