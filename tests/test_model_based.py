@@ -504,15 +504,20 @@ def test_model_based_runs_on_a_discrete_action_space_with_one_hot_actions(one_th
     assert counters.imagined_episodes > 0
 
 
-def test_gymnasiums_cartpole_reward_and_end_in_closed_form_are_gymnasiums_own():
-    """Imagined CartPole episodes end as real ones do: 1 a step, the falling one included, over 50 random episodes."""
+@pytest.mark.parametrize("env_id", ["CartPole-v1", "InvertedPendulum-v5"])
+def test_gymnasium_rewards_and_ends_in_closed_form_are_gymnasiums_own(env_id):
+    """Imagined episodes of the Gymnasium tasks drrl knows are paid and ended as real ones, over 50 random
+    episodes (random actions let every pole fall)."""
     import gymnasium
 
     from drrl.envs.registry import lookup
 
-    reward = lookup("CartPole-v1").reward
+    reward = lookup(env_id).reward
     assert reward is not None
-    env = gymnasium.make("CartPole-v1")
+    try:
+        env = gymnasium.make(env_id)
+    except gymnasium.error.DependencyNotInstalled as error:  # Gymnasium's MuJoCo tasks: drrl[envs]
+        pytest.skip(str(error))
     env.action_space.seed(0)
     ends = 0
     for episode in range(50):
@@ -524,4 +529,4 @@ def test_gymnasiums_cartpole_reward_and_end_in_closed_form_are_gymnasiums_own():
             rewards, ended = reward(observation[None], np.array([step]))
             assert (rewards[0], bool(ended[0])) == (real_reward, terminated), (episode, step)
             ends, done = ends + terminated, terminated or truncated
-    assert ends == 50  # random pushes let every pole fall
+    assert ends == 50

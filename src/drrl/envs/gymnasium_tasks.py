@@ -34,4 +34,15 @@ def cartpole_reward(next_observations: np.ndarray, steps: np.ndarray) -> tuple[n
     return np.ones(len(next_observations)), fallen
 
 
-REWARDS = {"CartPole-v0": cartpole_reward, "CartPole-v1": cartpole_reward}
+def inverted_pendulum_reward(next_observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gymnasium's InvertedPendulum-v5 (mujoco/inverted_pendulum_v5.py): the episode ends once the pole's angle
+    (observation 1) exceeds ±0.2 rad or the observation is not finite; 1 for every step that does not end it."""
+    fallen = ~np.isfinite(next_observations).all(axis=1) | (np.abs(next_observations[:, 1]) > 0.2)
+    return (~fallen).astype(np.float64), fallen
+
+
+REWARDS = {
+    "CartPole-v0": cartpole_reward,
+    "CartPole-v1": cartpole_reward,
+    "InvertedPendulum-v5": inverted_pendulum_reward,
+}
