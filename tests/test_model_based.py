@@ -530,3 +530,41 @@ def test_gymnasium_rewards_and_ends_in_closed_form_are_gymnasiums_own(env_id):
             assert (rewards[0], bool(ended[0])) == (real_reward, terminated), (episode, step)
             ends, done = ends + terminated, terminated or truncated
     assert ends == 50
+
+
+@pytest.mark.parametrize(
+    "keep, promised, undone",
+    [(True, [-300.0, -200.0], True), (True, [-100.0, -200.0], False), (False, [-300.0, -200.0], False)],
+)
+def test_a_search_that_ends_worse_in_the_model_is_undone_when_asked(keep, promised, undone, monkeypatch, one_thread):
+    """With keep_unless_improved, a search whose new centre the model promises no more than the old one (the
+    promises here given: new, old) is undone to its whole state before the search; otherwise it stands."""
+    import torch
+
+    from drrl.model_based import ModelBased
+
+    def search_gone_astray(self, search, counters, iteration):
+        state = search.state_dict()
+        state["center"] = search.center + 1.0
+        search.load_state_dict(state)
+        return 1, 0
+
+    monkeypatch.setattr(ModelBased, "search_in_model", search_gone_astray)
+    monkeypatch.setattr(ModelBased, "imagine_centers", lambda self, centers, iteration: torch.tensor(promised))
+    settings = SMALL.model_based.model_copy(update={"keep_unless_improved": keep})
+    setup = prepare(SMALL.model_copy(update={"model_based": settings, "budget": 2}))
+    before = setup.search.center.clone()
+    rows = run(setup).rows
+    assert [row["kept_center"] for row in rows] == [int(undone)]
+    assert rows[0]["imagined_center_return"] == (promised[1] if undone else promised[0])
+    assert torch.equal(setup.search.center, before if undone else before + 1.0)
+
+
+def test_the_new_and_the_old_centre_are_imagined_on_the_same_starts(one_thread):
+    import torch
+
+    setup = prepare(SMALL)
+    run(setup)
+    center = setup.search.center
+    returns = setup.world.imagine_centers(torch.stack([center, center, torch.zeros_like(center)]), iteration=7)
+    assert returns[0] == returns[1] and returns[2] != returns[0]

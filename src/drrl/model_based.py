@@ -150,15 +150,15 @@ class ModelBased(World):
         self.backend.use(
             Workload(self.policy, imagined, config.popsize, config.episodes_per_candidate, config.max_steps)
         )
+        before = search.state_dict()
+        old_center = search.center.clone()
         generations, tied = self.search_in_model(search, counters, iteration)
         search_end = time.perf_counter()
-        # the centre in the model, as long as a real episode (the loop measures it in reality)
-        env = self.imagined_world(self.settings.disagreement_penalty, self.real_horizon).make(
-            config.episodes_per_generation
-        )
-        in_model = evaluate(
-            self.policy, search.center[None], env, env.num_envs, seed=derive_seed(config.seed, iteration, IMAGINING)
-        )
+        # the centre in the model, as long as a real episode (the loop measures it in reality), beside the old one
+        in_model = self.imagine_centers(torch.stack([search.center, old_center]), iteration)
+        kept = bool(self.settings.keep_unless_improved and in_model[0] <= in_model[1])
+        if kept:
+            search.load_state_dict(before)
         return {
             "iteration": iteration,
             "real_episodes": counters.real_episodes,
@@ -168,7 +168,8 @@ class ModelBased(World):
             "generations": generations,
             "tied_generations": tied,
             "mean_return": float(real.returns.mean()),
-            "imagined_center_return": float(in_model.returns[0]),
+            "imagined_center_return": float(in_model[1 if kept else 0]),
+            "kept_center": int(kept),
             "sigma_norm": float(search.spread.norm()),
             "overshoot": fit_now.overshoot,
             "model_loss": held_out_loss(reports),
@@ -178,6 +179,14 @@ class ModelBased(World):
             "fit_time": round(search_start - fit_start, 3),
             "search_time": round(search_end - search_start, 3),
         }
+
+    def imagine_centers(self, centers: torch.Tensor, iteration: int) -> torch.Tensor:
+        """The imagined returns (C,) of ``centers`` (C, n) over a real episode's horizon, each on the same
+        imagined starts (common random numbers): what the model promises each in reality."""
+        episodes = self.config.episodes_per_generation
+        env = self.imagined_world(self.settings.disagreement_penalty, self.real_horizon).make(len(centers) * episodes)
+        seed = derive_seed(self.config.seed, iteration, IMAGINING)
+        return evaluate(self.policy, centers, env, episodes, seed=seed).returns
 
     def optimistic_explorers(self, search: Search, count: int, counters: Counters, iteration: int) -> torch.Tensor:
         """Of the search's candidates μ ± ε, the ``count`` whose imagined episode earns the most reward plus

@@ -77,6 +77,11 @@ class ModelBasedSettings(BaseModel):
         description="0: real explorers are random candidates μ ± ε; above 0: the candidates with the highest "
         "imagined return plus this times the ensemble's disagreement (needs ensemble_size ≥ 2)",
     )
+    keep_unless_improved: bool = Field(
+        False,
+        description="after the search in the model, go back to the search's state before it unless the new centre's "
+        "imagined return beats the old centre's in the same model, on the same imagined starts",
+    )
     model_optimizer: str = "adam_lambda"
     model_lr: float = Field(1e-2, gt=0, le=1e3)
     fit_batch_size: int = Field(128, ge=1, le=1_000_000)
