@@ -1,10 +1,9 @@
-import gymnasium
 import numpy as np
 import pytest
 import torch
-from test_models import cartpole_starts, linear_system_episodes
+from test_models import linear_system_episodes
 
-from drrl.models import Episode, EpisodeBuffer, FitSettings, ImaginedEnv, LinearModel
+from drrl.models import Episode, EpisodeBuffer, FitSettings, LinearModel
 from drrl.models.kinds import fit_model, make_model, remake
 from drrl.models.linear import fit_linear
 from drrl.models.quality import k_step_errors
@@ -85,21 +84,3 @@ def test_a_remade_model_has_the_kind_and_shape_and_a_fit_gives_the_same_weights(
     fit_model(again, buffer, SETTINGS, seed=3)
     for name, tensor in model.state_dict().items():
         torch.testing.assert_close(again.state_dict()[name], tensor)
-
-
-def test_imagined_episodes_step_each_with_its_own_member_alone():
-    """An ensemble's episodes grouped by member equal every member stepping every episode, across restarts (which
-    set the memory, the previous action, to zero, as a new episode's)."""
-    model = make_model("linear", 4, 1, members=3)
-    with torch.no_grad():
-        model.weight.normal_(0.0, 0.1, generator=torch.Generator().manual_seed(0))
-    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
-    own = ImaginedEnv(model, cartpole_starts(), 7, action_space, horizon=3)
-    every = ImaginedEnv(model, cartpole_starts(), 7, action_space, horizon=3, disagreement_penalty=1e-30)
-    actions = np.random.default_rng(0).uniform(-1, 1, (10, 7, 1)).astype(np.float32)
-    for env in (own, every):
-        env.reset(seed=list(range(7)))
-    for action in actions:
-        mine, theirs = own.step(action), every.step(action)
-        np.testing.assert_allclose(mine[0], theirs[0], rtol=1e-5, atol=1e-6)
-        np.testing.assert_array_equal(mine[3], theirs[3])

@@ -12,8 +12,8 @@ from drrl.models import Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, Im
 from drrl.models import fit as fit_module
 from drrl.models.data import STILL
 from drrl.models.fit import clip_member_gradients, fit
+from drrl.models.kinds import MODEL_KINDS, make_model
 from drrl.models.quality import k_step_errors, model_quality_report
-from drrl.models.recurrent import MODEL_KINDS
 from drrl.policies import linear
 from drrl.rollout import evaluate
 
@@ -375,9 +375,12 @@ def test_the_imagined_env_can_use_the_models_own_reward_and_penalise_disagreemen
 @pytest.mark.parametrize("kind", MODEL_KINDS)
 def test_each_imagined_episode_is_stepped_by_its_own_member_alone(kind):
     """Grouping the episodes by member (one member steps each) gives what every member stepping every episode
-    gives for the episode's own member, across restarts, which keep the layout."""
-    torch.manual_seed(0)
-    ensemble = WorldModel(4, 1, (8,), kind, members=3)
+    gives for the episode's own member, across restarts, which keep the layout (and set a model's memory, e.g. the
+    linear model's previous action, as a new episode's)."""
+    ensemble = make_model(kind, 4, 1, hidden=(8,), members=3, seed=0)
+    if kind == "linear":  # built with zero weights, which least squares would set
+        with torch.no_grad():
+            ensemble.weight.normal_(0.0, 0.1, generator=torch.Generator().manual_seed(0))
     action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
     own = ImaginedEnv(ensemble, cartpole_starts(), 7, action_space, horizon=3)
     every = ImaginedEnv(ensemble, cartpole_starts(), 7, action_space, horizon=3, disagreement_penalty=1e-30)
