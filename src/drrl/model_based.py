@@ -150,15 +150,18 @@ class ModelBased(World):
         self.backend.use(
             Workload(self.policy, imagined, config.popsize, config.episodes_per_candidate, config.max_steps)
         )
-        before = search.state_dict()
-        old_center = search.center.clone()
+        before = search.state_dict() if self.settings.keep_unless_improved else None
+        old_center = search.center
         generations, tied = self.search_in_model(search, counters, iteration)
         search_end = time.perf_counter()
-        # the centre in the model, as long as a real episode (the loop measures it in reality), beside the old one
-        in_model = self.imagine_centers(torch.stack([search.center, old_center]), iteration)
-        kept = bool(self.settings.keep_unless_improved and in_model[0] <= in_model[1])
-        if kept:
+        # the centre in the model, as long as a real episode (the loop measures it in reality); where it may be kept,
+        # the old one beside it on the same starts
+        centers = [search.center] if before is None else [search.center, old_center]
+        in_model = self.imagine_centers(torch.stack(centers), iteration)
+        kept = False
+        if before is not None and in_model[0] <= in_model[1]:
             search.load_state_dict(before)
+            kept = True
         return {
             "iteration": iteration,
             "real_episodes": counters.real_episodes,
