@@ -1,4 +1,5 @@
-"""Baxter's arms in MuJoCo (thesis 5.2): joint angular velocities as actions, the reach task of reward 5.10.
+"""Baxter's arms in MuJoCo (thesis 5.2): joint angular velocities as actions, the reach task of reward 5.10, and
+the wood stacking the thesis announces, with Baxter's grippers.
 
 | module | what it holds |
 | --- | --- |
@@ -6,6 +7,9 @@
 | ``simulation`` | many MjData stepped one control period at a time on MuJoCo's batch thread pool |
 | ``task`` | the reach task: starts, targets, workspace, reward 5.10 and its dense variant, the verdict |
 | ``env`` | the native ``BaxterReachVectorEnv`` and the single ``BaxterReachEnv`` |
+| ``grasping`` | the stacking scene: Rethink's electric grippers on the hands, pine blocks, contact sensors |
+| ``stacking`` | the stacking task: block positions, stack rule, rewards in 5.10's form and staged, the controllers |
+| ``stack_env`` | the native ``BaxterStackVectorEnv`` and the single ``BaxterStackEnv`` |
 | ``standin`` | a stand-in for the real robot: masses and damping off, delayed and lagging commands, noisy sensors |
 | ``render`` | headless MuJoCo frames of the scene |
 
@@ -18,6 +22,7 @@ from functools import partial
 from typing import Any
 
 from drrl.envs.baxter.model import SIDES
+from drrl.envs.baxter.stacking import explain_stack, stack_verdict
 from drrl.envs.baxter.task import STILLNESS, TIE_BREAK, ReachTask, explain_reach, reach_verdict
 from drrl.envs.registry import EnvEntry, register
 
@@ -90,5 +95,22 @@ for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
         ),
         "drrl.envs.baxter.env:BaxterReachEnv",
         "drrl.envs.baxter.env:BaxterReachVectorEnv",
+        _options,
+    )
+
+STACKING: dict[str, tuple[str, dict[str, Any], bool]] = {  # alias, Gymnasium id, task options, thesis reward
+    "baxter-stack": ("drrl/BaxterStack-v0", {}, True),  # a stack of two, fixed positions: the thesis's setting
+    "baxter-stack-random": ("drrl/BaxterStackRandom-v0", {"positions": "random"}, True),
+    "baxter-stack3": ("drrl/BaxterStack3-v0", {"blocks": 3}, True),
+    "baxter-stack3-random": ("drrl/BaxterStack3Random-v0", {"blocks": 3, "positions": "random"}, True),
+    "baxter-stack-dense": ("drrl/BaxterStackDense-v0", {"reward": "dense"}, False),
+}
+
+for _alias, (_env_id, _options, _thesis_reward) in STACKING.items():
+    _judged = {"verdict": stack_verdict, "explain": explain_stack} if _thesis_reward else {}
+    register(
+        EnvEntry(_env_id, _alias, **_judged),
+        "drrl.envs.baxter.stack_env:BaxterStackEnv",
+        "drrl.envs.baxter.stack_env:BaxterStackVectorEnv",
         _options,
     )

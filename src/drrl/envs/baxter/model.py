@@ -277,6 +277,13 @@ def _actuators(root: ET.Element, moving_arms: tuple[str, ...]) -> None:
 
 def baxter_xml(moving_arms: tuple[str, ...] = SIDES) -> str:
     """The MJCF text of Baxter with ``moving_arms`` jointed and actuated, one target marker per moving arm."""
+    root = baxter_tree(moving_arms)
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode")
+
+
+def baxter_tree(moving_arms: tuple[str, ...] = SIDES, target_markers: bool = True) -> ET.Element:
+    """``baxter_xml``'s MJCF as an element tree, for scenes built on it (``drrl.envs.baxter.grasping``)."""
     unknown = set(moving_arms) - set(SIDES)
     if unknown or not moving_arms or len(set(moving_arms)) != len(moving_arms):
         raise ValueError(f"moving_arms must be distinct sides among {SIDES}, got {moving_arms!r}")
@@ -312,7 +319,7 @@ def baxter_xml(moving_arms: tuple[str, ...] = SIDES) -> str:
     _scene_geom(torso, "pedestal", fromto=_vec((-0.03, 0, FLOOR_HEIGHT, -0.03, 0, -0.5)), size=0.12)
     for side in SIDES:
         _arm(torso, side, moving=side in moving_arms)
-    for side in moving_arms:
+    for side in moving_arms if target_markers else ():
         target = _add(world, "body", name=f"{side}_target", mocap="true")
         _add(
             target,
@@ -325,8 +332,7 @@ def baxter_xml(moving_arms: tuple[str, ...] = SIDES) -> str:
             rgba=COLOURS["target"],
         )
     _actuators(root, moving_arms)
-    ET.indent(root)
-    return ET.tostring(root, encoding="unicode")
+    return root
 
 
 def import_mujoco():
