@@ -104,6 +104,13 @@ STACKING: dict[str, tuple[str, dict[str, Any], bool]] = {  # alias, Gymnasium id
     "baxter-stack3": ("drrl/BaxterStack3-v0", {"blocks": 3}, True),
     "baxter-stack3-random": ("drrl/BaxterStack3Random-v0", {"blocks": 3, "positions": "random"}, True),
     "baxter-stack-dense": ("drrl/BaxterStackDense-v0", {"reward": "dense"}, False),
+    # the grip point's velocity through the arm's Jacobian instead of joint velocities (``stacking``)
+    "baxter-stack-end-point": ("drrl/BaxterStackEndPoint-v0", {"controller": "end_point"}, True),
+    "baxter-stack-dense-end-point": (
+        "drrl/BaxterStackDenseEndPoint-v0",
+        {"reward": "dense", "controller": "end_point"},
+        False,
+    ),
 }
 
 for _alias, (_env_id, _options, _thesis_reward) in STACKING.items():
