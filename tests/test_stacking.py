@@ -17,7 +17,8 @@ from drrl.envs.baxter.grasping import (
     load_grasping_model,
 )
 from drrl.envs.baxter.model import import_mujoco, neutral_pose
-from drrl.envs.baxter.stack_env import BaxterStackEnv, BaxterStackVectorEnv
+from drrl.envs.baxter.scripted import ScriptedStacker
+from drrl.envs.baxter.stack_env import BaxterStackEnv, BaxterStackVectorEnv, demonstrations
 from drrl.envs.baxter.stacking import BLOCK_TOP_REST, HORIZON, SETTLE_STEPS, StackTask, stacked_fraction
 
 mujoco = import_mujoco()
@@ -125,43 +126,18 @@ def test_the_batch_and_the_single_env_give_the_same_episode():
 
 
 def _pick_and_place(env: BaxterStackVectorEnv, steps: int = HORIZON):
-    """A scripted controller through the end_point actions: for k = 1, 2, ... grip block k from above, lift it, put
-    it down on block k − 1 and let go. Returns each env's return, the step its stack stood and whether it failed."""
-    n, rows = env.num_envs, np.arange(env.num_envs)
-    env.reset(seed=list(range(n)))
-    phase, timer, k = np.zeros(n, int), np.zeros(n, int), np.ones(n, int)
+    """The scripted stacker's episodes: each env's return, the step its stack stood and whether it failed."""
+    n = env.num_envs
+    observations, _ = env.reset(seed=list(range(n)))
+    stacker = ScriptedStacker(env.task, n)
     returns, stacked_at, failed = np.zeros(n), np.full(n, -1), np.zeros(n, bool)
-    clearance = np.array([0.0, 0.0, BLOCK_SIZE + 0.08])
     for t in range(steps):
-        grip, positions = env.robot.grip_points[:, 0], env.robot.blocks[..., :3]
-        block, lower = positions[rows, k], positions[rows, k - 1]
-        aims = [  # phase: where the grip point goes, whether the gripper closes, what ends the phase
-            (block + np.array([0, 0, 0.1]), False),  # above the block
-            (block, False),  # around it
-            (grip, True),  # close (0.7 s)
-            (np.c_[grip[:, :2], lower[:, 2] + clearance[2]], True),  # lift
-            (lower + clearance, True),  # above the lower block
-            (lower + np.array([0, 0, BLOCK_SIZE + 0.002]), True),  # put down
-            (grip, False),  # let go (0.5 s)
-            (np.c_[grip[:, :2], lower[:, 2] + clearance[2]], False),  # up
-        ]
-        target = np.stack([aims[min(p, 7)][0][i] for i, p in enumerate(phase)])
-        closed = np.array([aims[min(p, 7)][1] for p in phase])
-        error = target - grip
-        action = np.c_[np.clip(3.0 * error, -0.3, 0.3), np.where(closed, -1.0, 1.0)]
-        _, reward, terminated, _, info = env.step(action)
+        observations, reward, terminated, _, info = env.step(stacker.act(observations))
         active = (stacked_at < 0) & ~failed
         returns += np.where(active, reward, 0.0)
         stacked_at = np.where(info["stacked"] & active, t + 1, stacked_at)
         failed |= terminated & ~info["stacked"] & active
-        timer += 1
-        there = np.linalg.norm(error, axis=1) < 0.005
-        waited = np.where(phase == 2, timer > 70, timer > 50)
-        advance = np.where(np.isin(phase, (2, 6)), waited, there) & (timer > 5)
-        phase, timer = np.where(advance, phase + 1, phase), np.where(advance, 0, timer)
-        next_block = (phase == 8) & (k < env.task.blocks - 1)
-        k, phase = np.where(next_block, k + 1, k), np.where(next_block, 0, phase)
-        if not active.any():
+        if not ((stacked_at < 0) & ~failed).any():
             break
     return returns, stacked_at, failed
 
@@ -176,6 +152,22 @@ def test_a_scripted_pick_and_place_builds_stacks_that_stand(options):
     assert (returns <= -(stacked_at - SETTLE_STEPS) + 10).all()  # it stood only at the end, give or take a release
     terminated = torch.ones(4, dtype=torch.bool)
     assert stacked_fraction(torch.as_tensor(returns), terminated) == 1.0
+
+
+def test_starts_from_demonstrations_are_states_of_the_scripted_stackers_episodes():
+    states, lengths = demonstrations(("right",), 2, "fixed")
+    assert (lengths > SETTLE_STEPS).all() and states.shape[:2] == (16, lengths.max())
+    env = BaxterStackVectorEnv(32, demo_start=1.0)
+    env.reset(seed=3)
+    recorded = states[:, :, None]  # (episodes, steps, 1, state)
+    now = env.robot.states()  # (envs, state)
+    matches = np.abs(recorded[..., : now.shape[1]] - now).max(axis=-1) < 1e-9  # (episodes, steps, envs)
+    assert matches.any(axis=(0, 1)).all()  # every start is some demonstration's state
+    steps = np.nonzero(matches)[1]
+    assert steps.max() > lengths.min() / 2  # and not only their first ones
+    late = BaxterStackVectorEnv(32, demo_start=0.01)
+    late.reset(seed=3)
+    assert (late.robot.openings > 0.99).all()  # within their first 1 %: the gripper still open
 
 
 def test_an_arm_in_the_table_fails_at_twice_the_remaining_steps():
@@ -226,8 +218,14 @@ def test_the_stack_rule_and_the_staged_progress():
         ({"arms": ("right", "left")}, "stacking moves one arm"),
         ({"positions": "anywhere"}, "positions must be one of"),
         ({"controller": "torque"}, "controller must be one of"),
+        ({"demo_start": 1.5}, "demo_start must be in"),
     ],
 )
 def test_bad_stacking_options_are_refused_in_one_line(options, message):
     with pytest.raises(ValueError, match=message):
         StackTask(**options)
+
+
+def test_the_scripted_stacker_needs_end_point_actions():
+    with pytest.raises(ValueError, match="end-point actions"):
+        ScriptedStacker(StackTask(), 1)

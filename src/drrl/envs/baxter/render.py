@@ -17,12 +17,16 @@ from drrl.envs.baxter.model import import_mujoco
 
 # From the front, slightly to the robot's right: the torso, both arms, the targets and the table.
 VIEW = {"lookat": (0.4, 0.0, 0.05), "distance": 2.2, "azimuth": 195.0, "elevation": -20.0}
+# Close to the right arm's blocks (the stacking tasks).
+STACK_VIEW = {"lookat": (0.67, -0.42, -0.13), "distance": 0.75, "azimuth": 215.0, "elevation": -22.0}
 
 
 class SceneRenderer:
-    """RGB frames (height, width, 3) of one model's simulations, from ``VIEW``."""
+    """RGB frames (height, width, 3) of one model's simulations, from ``view`` (``VIEW`` unless given)."""
 
-    def __init__(self, model, width: int = 320, height: int = 240, shadows: bool = False) -> None:
+    def __init__(
+        self, model, width: int = 320, height: int = 240, shadows: bool = False, view: dict | None = None
+    ) -> None:
         mujoco = import_mujoco()
         try:
             self._renderer = mujoco.Renderer(model, height, width)
@@ -35,12 +39,13 @@ class SceneRenderer:
         flags = self._renderer.scene.flags
         flags[mujoco.mjtRndFlag.mjRND_SHADOW] = shadows
         flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = shadows
+        view = VIEW if view is None else view
         self._camera = mujoco.MjvCamera()
-        self._camera.lookat[:] = VIEW["lookat"]
+        self._camera.lookat[:] = view["lookat"]
         self._camera.distance, self._camera.azimuth, self._camera.elevation = (
-            VIEW["distance"],
-            VIEW["azimuth"],
-            VIEW["elevation"],
+            view["distance"],
+            view["azimuth"],
+            view["elevation"],
         )
 
     def render(self, data) -> np.ndarray:

@@ -148,6 +148,21 @@ class BaxterBatch:
         self._stopped[ids] = False
         self.batch.forward(ids, stage=self.stage)
 
+    def states(self) -> np.ndarray:
+        """Every simulation's whole state (num_sims, nq + nv + nu): positions, velocities, commands; a fresh array."""
+        return np.concatenate([self._qpos, self._qvel, self._ctrl], axis=1)
+
+    def restore(self, ids: np.ndarray, states: np.ndarray) -> None:
+        """Put simulations ``ids`` in ``states`` (n, nq + nv + nu), as ``states`` gave them, and restart them."""
+        nq, nv = self._qpos.shape[1], self._qvel.shape[1]
+        self._qpos[ids], self._qvel[ids], self._ctrl[ids] = (
+            states[:, :nq],
+            states[:, nq : nq + nv],
+            states[:, nq + nv :],
+        )
+        self._stopped[ids] = False
+        self.batch.forward(ids, stage=self.stage)
+
     def stop(self, ids: np.ndarray) -> None:
         """The safety stop: simulations ``ids`` are commanded to stand still until restarted."""
         self._stopped[ids] = True

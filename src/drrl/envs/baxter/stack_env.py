@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import cache
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -19,8 +20,9 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from drrl.envs.baxter.env import _METADATA, SUBSTEPS, _check_render_mode, _checked, _Randomness
+from drrl.envs.baxter.scripted import ScriptedStacker
 from drrl.envs.baxter.simulation import BaxterBatch
-from drrl.envs.baxter.stacking import SETTLE_STEPS, StackTask
+from drrl.envs.baxter.stacking import HORIZON, SETTLE_STEPS, StackTask
 
 if TYPE_CHECKING:
     from drrl.envs.baxter.render import SceneRenderer
@@ -105,9 +107,9 @@ class BaxterStackVectorEnv(gym.vector.VectorEnv):
         if self.render_mode is None or self._randomness is None:
             return None
         if self._renderer is None:
-            from drrl.envs.baxter.render import SceneRenderer
+            from drrl.envs.baxter.render import STACK_VIEW, SceneRenderer
 
-            self._renderer = SceneRenderer(self.robot.model, **self._render_options)
+            self._renderer = SceneRenderer(self.robot.model, view=STACK_VIEW, **self._render_options)
         return tuple(self._renderer.render(self.robot.data(i)) for i in range(self.num_envs))
 
     def close(self, **kwargs: Any) -> None:
@@ -120,8 +122,15 @@ class BaxterStackVectorEnv(gym.vector.VectorEnv):
 
     def _start(self, ids: np.ndarray) -> None:
         assert self._randomness is not None
-        joints, blocks = self.task.starts(self._randomness.uniform(ids, self.task.random_numbers_per_start))
+        task = self.task
+        uniform = self._randomness.uniform(ids, task.random_numbers_per_start)
+        joints, blocks = task.starts(uniform)
         self.robot.restart(ids, joints, np.zeros((len(ids), 0, 3)), blocks)
+        if task.demo_start:
+            states, lengths = demonstrations(task.arms, task.blocks, task.positions)
+            demo = (uniform[:, -2] * len(lengths)).astype(np.int64)
+            step = (uniform[:, -1] * task.demo_start * lengths[demo]).astype(np.int64)
+            self.robot.restore(ids, states[demo, step])
         self.elapsed_steps[ids] = self.standing_steps[ids] = 0
         self._ended[ids] = False
 
@@ -155,6 +164,31 @@ class BaxterStackVectorEnv(gym.vector.VectorEnv):
 
     def _info(self, stacked: np.ndarray) -> dict[str, Any]:
         return {"stacked": stacked, "placed": self.task.placed(self.robot.blocks[..., :3]).sum(axis=1)}
+
+
+DEMONSTRATIONS = 16  # recorded episodes of the scripted stacker per task, for starts from demonstrations
+
+
+@cache
+def demonstrations(arms: tuple[str, ...], blocks: int, positions: str) -> tuple[np.ndarray, np.ndarray]:
+    """The scripted stacker's episodes on the task (seeds 0–15): every step's whole simulation state (episodes,
+    steps, state) and each episode's length up to the step its stack stood (episodes,). Recorded once a process."""
+    env = BaxterStackVectorEnv(DEMONSTRATIONS, arms=arms, blocks=blocks, positions=positions, controller="end_point")
+    observations, _ = env.reset(seed=list(range(DEMONSTRATIONS)))
+    stacker, states = ScriptedStacker(env.task, DEMONSTRATIONS), []
+    lengths = np.zeros(DEMONSTRATIONS, dtype=np.int64)
+    for step in range(1, HORIZON + 1):
+        states.append(env.robot.states())
+        observations, _, terminated, _, info = env.step(stacker.act(observations))
+        lengths = np.where(info["stacked"] & (lengths == 0), step, lengths)
+        if terminated.any() and not info["stacked"][terminated].all():
+            raise RuntimeError("the scripted stacker failed while recording demonstrations")
+        if (lengths > 0).all():
+            break
+    env.close()
+    if (lengths == 0).any():
+        raise RuntimeError("the scripted stacker did not build every demonstration's stack within the horizon")
+    return np.stack(states, axis=1), lengths
 
 
 class BaxterStackEnv(gym.Env):

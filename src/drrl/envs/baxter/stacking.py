@@ -28,6 +28,12 @@ from the grip point and each block k ≥ 1's offset from its place on block k �
 
 Block positions: "fixed" (the thesis's setting: the same every episode), or "random": each block moved uniformly
 within ±4 cm and turned within ±0.3 rad of its fixed pose, per episode.
+
+Starts from demonstrations (beyond the thesis, for a curriculum): with ``demo_start`` = f > 0 an episode starts in
+the state of one of the scripted stacker's recorded episodes (``drrl.envs.baxter.scripted``) a uniform fraction
+between 0 and f of the way through it, e.g. with a block already held. A schedule that shrinks f toward 0 teaches
+the end of the task first and the whole of it last (as resets to demonstration states do in robot learning);
+measuring always starts from the beginning.
 """
 
 from __future__ import annotations
@@ -71,6 +77,7 @@ class StackTask:
     controller: str = "velocity"
     horizon: int = HORIZON
     start_noise: float = START_NOISE
+    demo_start: float = 0.0
     max_velocity: np.ndarray = field(init=False, repr=False)
     joint_low: np.ndarray = field(init=False, repr=False)
     joint_high: np.ndarray = field(init=False, repr=False)
@@ -87,6 +94,8 @@ class StackTask:
         _check_choice("controller", self.controller, CONTROLLERS)
         if self.horizon <= SETTLE_STEPS or self.start_noise < 0:
             raise ValueError(f"horizon must exceed {SETTLE_STEPS} control steps and start_noise be ≥ 0")
+        if not 0.0 <= self.demo_start <= 1.0:
+            raise ValueError(f"demo_start must be in [0, 1] (a share of a demonstration), got {self.demo_start!r}")
         object.__setattr__(self, "max_velocity", np.array([j.max_velocity for j in ARM]))
         object.__setattr__(self, "joint_low", np.array([j.lower for j in ARM]))
         object.__setattr__(self, "joint_high", np.array([j.upper for j in ARM]))
@@ -117,8 +126,9 @@ class StackTask:
 
     @property
     def random_numbers_per_start(self) -> int:
-        """U[0, 1) numbers one start draws: a noise per joint, then (x, y, yaw) per block if positions are random."""
-        return 7 + (3 * self.blocks if self.positions == "random" else 0)
+        """U[0, 1) numbers one start draws: a noise per joint, then (x, y, yaw) per block if positions are random,
+        then with ``demo_start`` a demonstration and a point in it."""
+        return 7 + (3 * self.blocks if self.positions == "random" else 0) + (2 if self.demo_start else 0)
 
     def starts(self, uniform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Start joint angles (n, 7) and block poses (n, blocks, 7: position, quaternion) from U[0, 1) numbers."""
@@ -128,7 +138,7 @@ class StackTask:
         xy = np.broadcast_to(fixed, (n, self.blocks, 2))
         yaw = np.full((n, self.blocks), BLOCK_YAW if self.side == "right" else -BLOCK_YAW)
         if self.positions == "random":
-            jitter = 2 * uniform[:, 7:].reshape(n, self.blocks, 3) - 1
+            jitter = 2 * uniform[:, 7 : 7 + 3 * self.blocks].reshape(n, self.blocks, 3) - 1
             xy = xy + POSITION_JITTER * jitter[..., :2]
             yaw = yaw + YAW_JITTER * jitter[..., 2]
         poses = np.zeros((n, self.blocks, 7))
@@ -145,6 +155,15 @@ class StackTask:
         parts = [qpos, qvel / self.max_velocity, openings, grip_points[:, 0], blocks.reshape(n, -1)]
         parts += [to_blocks.reshape(n, -1), to_places.reshape(n, -1)]
         return np.concatenate(parts, axis=1, dtype=np.float32)
+
+    def observed_grip_point(self, observations: np.ndarray) -> np.ndarray:
+        """The grip point (n, 3) in observations (n, observation_size)."""
+        return np.asarray(observations[:, 15:18], dtype=np.float64)
+
+    def observed_blocks(self, observations: np.ndarray) -> np.ndarray:
+        """The blocks' positions (n, blocks, 3) in observations (n, observation_size)."""
+        poses = np.asarray(observations[:, 18 : 18 + 7 * self.blocks], dtype=np.float64)
+        return poses.reshape(len(observations), self.blocks, 7)[..., :3]
 
     @staticmethod
     def places(positions: np.ndarray) -> np.ndarray:
