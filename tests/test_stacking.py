@@ -19,7 +19,15 @@ from drrl.envs.baxter.grasping import (
 from drrl.envs.baxter.model import import_mujoco, neutral_pose
 from drrl.envs.baxter.scripted import ScriptedStacker
 from drrl.envs.baxter.stack_env import BaxterStackEnv, BaxterStackVectorEnv, demonstrations
-from drrl.envs.baxter.stacking import BLOCK_TOP_REST, HORIZON, SETTLE_STEPS, StackTask, stacked_fraction
+from drrl.envs.baxter.model import TABLE_TOP
+from drrl.envs.baxter.stacking import (
+    BLOCK_TOP_REST,
+    HORIZON,
+    SETTLE_STEPS,
+    StackTask,
+    fingertip_heights,
+    stacked_fraction,
+)
 
 mujoco = import_mujoco()
 
@@ -170,19 +178,34 @@ def test_starts_from_demonstrations_are_states_of_the_scripted_stackers_episodes
     assert (late.robot.openings > 0.99).all()  # within their first 1 %: the gripper still open
 
 
-def test_an_arm_in_the_table_fails_at_twice_the_remaining_steps():
-    env = BaxterStackVectorEnv(1, controller="end_point")
+@pytest.mark.parametrize(
+    ("velocities", "into"),
+    [([0.5, 0.5, 0, 0, 0, 0, 0], "the table"), ([0, 0.5, 0, -0.5, 0, 0, 0], "the elbow's limit")],
+)
+def test_joint_velocities_into_the_table_or_a_limit_fail_at_twice_the_remaining_steps(velocities, into):
+    env = BaxterStackVectorEnv(1)  # the thesis's joint-velocity actions
     env.reset(seed=0)
-    aim = np.array([0.75, -0.45, -0.05])  # over the table between the blocks; then down into it
-    for _ in range(600):
-        if np.linalg.norm(aim - env.robot.grip_points[0, 0]) < 0.01:
-            aim[2] = -0.5
-        velocity = np.clip(3.0 * (aim - env.robot.grip_points[0, 0]), -0.3, 0.3)
-        _, reward, terminated, _, info = env.step(np.r_[velocity, 1.0][None])
+    for _ in range(400):
+        _, reward, terminated, _, info = env.step(np.array([[*velocities, 1.0]]))
         if terminated[0]:
             break
     assert terminated[0] and not info["stacked"][0]
-    assert env.robot.in_contact[0] and reward[0] == -2.0 * (HORIZON - env.elapsed_steps[0])
+    assert env.robot.in_contact[0] == (into == "the table")
+    assert reward[0] == -2.0 * (HORIZON - env.elapsed_steps[0])
+
+
+def test_the_end_point_controller_keeps_random_actions_from_failing():
+    env = BaxterStackVectorEnv(32, controller="end_point")
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-1, 1, (12, 32, 4)) * [0.5, 0.5, 0.5, 1.0]
+    for action in actions:  # each held for 0.5 s: the grip points wander at up to 0.87 m/s
+        for _ in range(50):
+            _, _, terminated, _, _ = env.step(action)
+            assert not terminated.any()
+    assert (env.robot.grip_points[:, 0, 2] > BLOCK_TOP_REST).all()
+    down = np.broadcast_to(env.task.gripper_frame(), (2, 3, 3))
+    heights = fingertip_heights(np.array([[0.7, -0.4, TABLE_TOP + 0.03], [0.7, -0.4, 0.0]]), down)
+    np.testing.assert_allclose(heights, [0.01, -TABLE_TOP - 0.02])  # pointing down: the pads end 2 cm below
 
 
 def test_the_stack_rule_and_the_staged_progress():

@@ -1,6 +1,7 @@
 """A scripted stacker: what the stacking task asks, done by hand-written rules through the end-point actions.
 
-For k = 1, 2, ...: bring the open gripper 10 cm above block k, lower it around the block, close it (0.7 s), lift to
+For k = 1, 2, ...: bring the open gripper 10 cm above block k, lower it around the block (the grip point 1.2 cm
+above the block's centre, as the end-point controller keeps the fingertips off the table), close it (0.7 s), lift to
 8 cm above the stack, move over block k − 1, put block k down on it, open (0.5 s) and rise again. Each stage ends
 when the grip point is within 5 mm of its aim (or its time has passed); the grip point is driven toward its aim at
 3 m/s per metre of error, at most 0.3 m/s per axis. It reads only the observations, so it is a policy (with a
@@ -19,6 +20,8 @@ GAIN = 3.0  # 1/s
 SPEED = 0.3  # m/s per axis
 ARRIVED = 0.005  # m
 ABOVE = 0.10  # m over a block before going down to it
+GRASP = 0.012  # m: the grip point this far above a grasped block's centre (the controller keeps the fingers 1 cm
+#                off the table)
 CLEARANCE = BLOCK_SIZE + 0.08  # m over the lower block while carrying
 CLOSE_STEPS, OPEN_STEPS = 70, 50  # control steps to close around a block, and to let it go
 STAGES = 8
@@ -47,11 +50,11 @@ class ScriptedStacker:
         aims = np.stack(
             [
                 block + _up(ABOVE),  # 0: above the block
-                block,  # 1: around it
+                block + _up(GRASP),  # 1: around it
                 grip,  # 2: close
                 np.c_[grip[:, :2], carry],  # 3: lift
                 lower + _up(CLEARANCE),  # 4: above the lower block
-                lower + _up(BLOCK_SIZE + 0.002),  # 5: put it down
+                lower + _up(BLOCK_SIZE + GRASP + 0.002),  # 5: put it down
                 grip,  # 6: let go
                 np.c_[grip[:, :2], carry],  # 7: rise
             ],

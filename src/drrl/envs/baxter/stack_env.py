@@ -150,13 +150,14 @@ class BaxterStackVectorEnv(gym.vector.VectorEnv):
         truncated = self.elapsed_steps >= task.horizon
         return reward, terminated, truncated, stacked & ~failed
 
-    def _jacobians(self) -> tuple[np.ndarray, np.ndarray]:
-        """The grip point's Jacobian over the arm's joints (n, 6, 7) and the gripper's frame (n, 3, 3)."""
+    def _jacobians(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The grip point's Jacobian over the arm's joints (n, 6, 7), the gripper's frame (n, 3, 3), the point
+        (n, 3)."""
         points = self.robot.grip_points[:, 0]
         translation, rotation = self.robot.batch.jac(self._hand, points)
         dofs = self.robot.dofs
         jacobian = np.concatenate([translation[..., dofs], rotation[..., dofs]], axis=1)
-        return jacobian, self.robot.grip_frames[:, 0]
+        return jacobian, self.robot.grip_frames[:, 0], points
 
     def _observe(self) -> np.ndarray:
         robot = self.robot

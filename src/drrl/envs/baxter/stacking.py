@@ -20,7 +20,9 @@ Rewards after the transition at 1-based step t ≤ T:
 Actions, per arm: "velocity" (the thesis's), the 7 joint velocities (rad/s) and the gripper's command in [−1, 1]
 (−1 closed, 1 open); "end_point" (beyond the thesis, as robot-learning suites offer), the grip point's velocity
 (m/s, base frame, at most 0.5 per axis) and the gripper's command, turned into joint velocities through the arm's
-Jacobian while the gripper is held pointing down at the blocks' yaw.
+Jacobian (damped least squares) while the gripper is held pointing down at the blocks' yaw. Like the operational-space
+controllers of robot-learning suites it guards the robot: it stops each joint 0.05 rad inside its limits and the
+fingertips 1 cm above the table, so that a policy fails only by hitting something with the arm.
 
 Observations, float32: joint angles (rad), joint velocities as fractions of their limits, the gripper's opening
 (1 open, 0 closed), the grip point (m), each block's position (m) and orientation quaternion, each block's offset
@@ -43,8 +45,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from drrl.envs.baxter.grasping import BLOCK_SIZE, BLOCK_TOP_REST
-from drrl.envs.baxter.model import ARM, SIDES, neutral_pose
+from drrl.envs.baxter.grasping import (
+    BLOCK_SIZE,
+    BLOCK_TOP_REST,
+    FINGER_BASE,
+    FINGER_LENGTH,
+    GRIP_POINT,
+    OPEN_WIDTH,
+    PAD_THICKNESS,
+)
+from drrl.envs.baxter.model import ARM, SIDES, TABLE_TOP, neutral_pose
 from drrl.envs.baxter.task import OFFSET_UNIT, START_NOISE, _check_choice, mirror
 
 HORIZON = 2000  # control steps of 0.01 s (as 5.10)
@@ -64,6 +74,17 @@ RESTING_SPEED = 0.02  # m/s
 MAX_END_POINT_SPEED = 0.5  # m/s per axis (end_point controller)
 ORIENTATION_GAIN = 5.0  # 1/s: the end_point controller's correction of the gripper's orientation
 NULL_GAIN = 1.0  # 1/s: ... and its pull of the redundant joint motion toward the neutral pose
+DAMPING = 0.02  # the damped least squares' λ (m), which keeps joint speeds finite near a singular pose
+# The end_point controller's guards: no joint is sent closer than LIMIT_MARGIN to its limits, approached at most at
+# LIMIT_GAIN per radian left, and the fingertips not below TIP_CLEARANCE above the table top, approached at most at
+# FLOOR_GAIN per metre left (slow enough that the arm's lag does not carry them through).
+LIMIT_MARGIN = 0.05  # rad
+LIMIT_GAIN = 10.0  # 1/s
+TIP_CLEARANCE = 0.01  # m
+TIP_BELOW = FINGER_BASE + FINGER_LENGTH - GRIP_POINT  # m: the pads' ends beyond the grip point (2 cm), gripper's z
+PAD_SPAN = (OPEN_WIDTH + PAD_THICKNESS) / 2  # m: the pads' centres from the grip point, along its y (open)
+PAD_HALF_WIDTH = 0.01  # m, along its x
+FLOOR_GAIN = 3.0  # 1/s
 
 
 @dataclass(frozen=True)
@@ -208,19 +229,32 @@ class StackTask:
 
     def commands(self, actions: np.ndarray, qpos: np.ndarray, jacobians=None) -> tuple[np.ndarray, np.ndarray]:
         """(joint velocities (n, 7) before their limits, gripper openings (n, 1) in [0, 1]) for actions (n,
-        action_size); the end_point controller needs ``jacobians`` () -> (J (n, 6, 7), gripper frames (n, 3, 3))."""
+        action_size); the end_point controller needs ``jacobians`` () -> (J (n, 6, 7), gripper frames (n, 3, 3),
+        grip points (n, 3))."""
         openings = (np.clip(actions[:, -1:], -1.0, 1.0) + 1.0) / 2.0
         if self.controller == "velocity":
             return actions[:, :-1], openings
-        jacobian, frames = jacobians()
-        wanted = self.gripper_frame()
-        error = 0.5 * np.cross(frames, wanted, axis=1).sum(axis=2)  # rotation taking the frame toward the wanted one
-        twist = np.concatenate([actions[:, :3], ORIENTATION_GAIN * error], axis=1)
-        inverse = np.linalg.pinv(jacobian)
+        jacobian, frames, grip_points = jacobians()
+        velocity = np.array(actions[:, :3], dtype=np.float64)
+        room = fingertip_heights(grip_points, frames) - TIP_CLEARANCE  # (n,) m left above the floor
+        velocity[room < 0, :2] = 0.0  # there only up: a move the joint guards cut short may pull it down
+        velocity[:, 2] = np.maximum(velocity[:, 2], -FLOOR_GAIN * room)
+        error = 0.5 * np.cross(frames, self.gripper_frame(), axis=1).sum(axis=2)  # turns the frame toward the wanted
+        twist = np.concatenate([velocity, ORIENTATION_GAIN * error], axis=1)
+        transposed = jacobian.transpose(0, 2, 1)  # damped least squares: J^T (J J^T + λ² I)^-1
+        inverse = transposed @ np.linalg.inv(jacobian @ transposed + DAMPING**2 * np.eye(6))
         velocities = np.einsum("nij,nj->ni", inverse, twist)
-        null = np.eye(7) - inverse @ jacobian
+        null = np.eye(7) - np.linalg.pinv(jacobian) @ jacobian  # exact, so the pull does not leak into the twist
         velocities += np.einsum("nij,nj->ni", null, NULL_GAIN * (self.neutral - qpos))
-        return velocities, openings
+        over = np.abs(velocities / self.max_velocity).max(axis=1, keepdims=True)
+        velocities /= np.maximum(over, 1.0)  # within the joints' speed limits, the motion's direction kept
+        low, high = self.joint_low + LIMIT_MARGIN - qpos, self.joint_high - LIMIT_MARGIN - qpos
+        velocities = np.clip(velocities, LIMIT_GAIN * low, LIMIT_GAIN * high)
+        # the guards above bend the motion where a joint stops: slow it as a whole if it then sinks too fast
+        sinking = np.einsum("nj,nj->n", jacobian[:, 2], velocities)
+        allowed = np.minimum(-FLOOR_GAIN * room, 0.0)
+        scale = np.where(sinking < allowed, allowed / np.minimum(sinking, -1e-12), 1.0)
+        return velocities * scale[:, None], openings
 
     def gripper_frame(self) -> np.ndarray:
         """The orientation the end_point controller holds (3, 3), columns the gripper's axes in the base frame: z
@@ -228,6 +262,15 @@ class StackTask:
         yaw = BLOCK_YAW if self.side == "right" else -BLOCK_YAW
         y, z = np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.array([0.0, 0.0, -1.0])
         return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def fingertip_heights(grip_points: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """The lowest fingertip's height above the table top (n,), for grip points (n, 3) and gripper frames (n, 3, 3):
+    the pads' ends lie 2 cm beyond the grip point along the gripper's z, 4.1 cm to either side along its y and 1 cm
+    along its x."""
+    up = frames[:, 2]  # each gripper axis's world z
+    lowest = grip_points[:, 2] + TIP_BELOW * up[:, 2] - PAD_SPAN * np.abs(up[:, 1]) - PAD_HALF_WIDTH * np.abs(up[:, 0])
+    return lowest - TABLE_TOP
 
 
 def stacked_fraction(episode_returns: torch.Tensor, terminated: torch.Tensor, horizon: int = HORIZON) -> float:
