@@ -16,10 +16,9 @@ from drrl.envs.baxter.grasping import (
     PAD_THICKNESS,
     load_grasping_model,
 )
-from drrl.envs.baxter.model import import_mujoco, neutral_pose
+from drrl.envs.baxter.model import TABLE_TOP, import_mujoco, neutral_pose
 from drrl.envs.baxter.scripted import ScriptedStacker
 from drrl.envs.baxter.stack_env import BaxterStackEnv, BaxterStackVectorEnv, demonstrations
-from drrl.envs.baxter.model import TABLE_TOP
 from drrl.envs.baxter.stacking import (
     BLOCK_TOP_REST,
     HORIZON,
