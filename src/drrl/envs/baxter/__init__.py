@@ -6,6 +6,7 @@ the wood stacking the thesis announces, with Baxter's grippers.
 | ``model`` | drrl's own MJCF model: URDF kinematics, limits and masses, capsule links, torso, table |
 | ``simulation`` | many MjData stepped one control period at a time on MuJoCo's batch thread pool |
 | ``task`` | the reach task: starts, targets, workspace, reward 5.10 and its dense variant, the verdict |
+| ``native`` | what the native envs share: seeding, next-step autoreset, frames, the single env over a batch of one |
 | ``env`` | the native ``BaxterReachVectorEnv`` and the single ``BaxterReachEnv`` |
 | ``grasping`` | the stacking scene: Rethink's electric grippers on the hands, pine blocks, contact sensors |
 | ``stacking`` | the stacking task: block positions, stack rule, rewards in 5.10's form and staged, the controllers |

@@ -16,44 +16,20 @@ each group.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from drrl.envs.baxter.model import TIMESTEP, load_model
+from drrl.envs.baxter.native import NativeBaxterEnv, OneBaxterEnv
 from drrl.envs.baxter.robot import Robot
 from drrl.envs.baxter.simulation import BaxterBatch
 from drrl.envs.baxter.standin import Actuation, StandIn
 from drrl.envs.baxter.task import CONTROL_PERIOD, ReachTask
 
-if TYPE_CHECKING:
-    from drrl.envs.baxter.render import SceneRenderer
-
 SUBSTEPS = round(CONTROL_PERIOD / TIMESTEP)  # physics steps per control period
-_METADATA = {"render_modes": ["rgb_array"], "render_fps": round(1 / CONTROL_PERIOD)}
-
-
-class _Randomness:
-    """Random numbers per env, from one generator for the whole batch or from each env's own generator (then drawn
-    env by env: a Python loop, paid at restarts and, with transition noise, at every step)."""
-
-    def __init__(self, batch: np.random.Generator | None = None, per_env: Sequence[np.random.Generator] = ()) -> None:
-        self._batch, self._per_env = batch, per_env
-
-    def uniform(self, ids: np.ndarray, size: int) -> np.ndarray:
-        if self._batch is not None:
-            return self._batch.random((len(ids), size))
-        return np.stack([self._per_env[i].random(size) for i in ids])
-
-    def normal(self, ids: np.ndarray, size: int) -> np.ndarray:
-        if self._batch is not None:
-            return self._batch.standard_normal((len(ids), size))
-        return np.stack([self._per_env[i].standard_normal(size) for i in ids])
 
 
 def _spaces(task: ReachTask) -> tuple[spaces.Box, spaces.Box]:
@@ -65,17 +41,10 @@ def _spaces(task: ReachTask) -> tuple[spaces.Box, spaces.Box]:
     return observation, spaces.Box(-velocity, velocity, dtype=np.float32)
 
 
-def _check_render_mode(render_mode: str | None) -> str | None:
-    if render_mode not in (None, "rgb_array"):
-        raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-    return render_mode
+class BaxterReachVectorEnv(NativeBaxterEnv):
+    """``num_envs`` Baxters reaching together, stepped on MuJoCo's thread pool, with next-step autoreset and the
+    seeding of ``drrl.envs.baxter.native.NativeBaxterEnv``.
 
-
-class BaxterReachVectorEnv(gym.vector.VectorEnv):
-    """``num_envs`` Baxters reaching together, stepped on MuJoCo's thread pool, with next-step autoreset.
-
-    ``reset(seed=int)`` seeds one generator for all starts, targets and noise of the batch; ``reset(seed=[s_0,
-    ...])`` gives env i its own generator ``np.random.default_rng(s_i)``, so that its episodes depend only on s_i.
     Task options (``arms``, ``targets``, ``reward``, ``action_noise``, ...) are those of ``ReachTask``. ``stand_in``
     (a ``StandIn`` or its keyword arguments) makes every robot of the batch that stand-in for the real Baxter.
     ``info["distance"]`` holds each env's largest end-point-to-target distance (m) after the step. ``width``,
@@ -83,8 +52,6 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
     ``robot``: the robots to run the task on (``drrl.envs.baxter.robot.Robot``, one per env, moving the task's arms
     at its control period); drrl's simulation unless given. An env that ends stops its robot (``Robot.stop``).
     """
-
-    metadata = {**_METADATA, "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(
         self,
@@ -99,9 +66,7 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         robot: Robot | None = None,
         **task_options: Any,
     ) -> None:
-        self.num_envs = num_envs
-        self.render_mode = _check_render_mode(render_mode)
-        self._render_options: dict[str, Any] = {"width": width, "height": height, "shadows": shadows}
+        super().__init__(num_envs, render_mode, {"width": width, "height": height, "shadows": shadows})
         self.task = task if task is not None else ReachTask(**task_options)
         self.stand_in = StandIn(**stand_in) if isinstance(stand_in, dict) else stand_in
         arms, self._actuation = self.task.arms, None
@@ -116,84 +81,15 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         self.single_observation_space, self.single_action_space = _spaces(self.task)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
-        self.elapsed_steps = np.zeros(num_envs, dtype=np.int64)
-        self._randomness: _Randomness | None = None
-        self._ended = np.zeros(num_envs, dtype=bool)  # ended on the previous step: restart on this one
-        self._renderer: SceneRenderer | None = None
-
-    def reset(
-        self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start every env afresh. ``seed``: one int for the batch, one int per env, or None to go on drawing from
-        the current generator(s). ``options`` are not used."""
-        if isinstance(seed, (int, np.integer)):
-            super().reset(seed=int(seed))
-            self._randomness = _Randomness(batch=self.np_random)
-        elif seed is not None:
-            if len(seed) != self.num_envs:
-                raise ValueError(f"expected one seed per env ({self.num_envs}), got {len(seed)}")
-            self._randomness = _Randomness(per_env=[np.random.default_rng(int(s)) for s in seed])
-        elif self._randomness is None:
-            self._randomness = _Randomness(batch=self.np_random)
-        self._start(np.arange(self.num_envs))
-        return self._observe(), {"distance": self._distances().max(axis=1)}
-
-    def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """One control period for every env; envs that ended on the previous step restart instead.
-
-        A restarting env returns its start observation, reward 0, terminated and truncated False; its action is
-        ignored (Gymnasium's next-step autoreset). An env failing at step T is both terminated and truncated.
-        """
-        if self._randomness is None:
-            raise RuntimeError("call reset() before step()")
-        reward, terminated, truncated, distance = self._advance(
-            _checked(actions, (self.num_envs, self.task.num_joints))
-        )
-        restarting = self._ended.nonzero()[0]
-        if restarting.size:
-            self._start(restarting)
-            reward[restarting] = 0.0
-            terminated[restarting] = truncated[restarting] = False
-            distance[restarting] = self._distances()[restarting].max(axis=1)
-        self._ended = terminated | truncated
-        return self._observe(), reward, terminated, truncated, {"distance": distance}
-
-    def render(self) -> tuple[np.ndarray, ...] | None:
-        """One RGB frame per env, or None without render_mode 'rgb_array'."""
-        if self.render_mode is None or self._randomness is None:
-            return None
-        if not isinstance(self.robot, BaxterBatch):
-            raise ValueError(f"only drrl's simulation renders frames; this env runs on {type(self.robot).__name__}")
-        if self._renderer is None:
-            from drrl.envs.baxter.render import SceneRenderer
-
-            self._renderer = SceneRenderer(self.robot.model, **self._render_options)
-        return tuple(self._renderer.render(self.robot.data(i)) for i in range(self.num_envs))
-
-    def close(self, **kwargs: Any) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-        super().close(**kwargs)
-
-    # ------------------------------------------------------------------------------------------------ internals
-
-    @property
-    def _random(self) -> _Randomness:
-        if self._randomness is None:
-            raise RuntimeError("call reset() before step()")
-        return self._randomness
 
     def _start(self, ids: np.ndarray) -> None:
         joints, targets = self.task.starts(self._random.uniform(ids, self.task.random_numbers_per_start))
         self.robot.restart(ids, joints, targets)
         if self._actuation is not None:
             self._actuation.restart(ids)
-        self.elapsed_steps[ids] = 0
-        self._ended[ids] = False
 
-    def _advance(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Physics and reward of one control period: (reward, terminated, truncated, largest distance), each (n,)."""
+    def _advance(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Physics and reward of one control period: (reward, terminated, truncated, info), each (n,)."""
         limit = self.task.max_velocity
         velocities = self.task.velocities(actions, self.robot.qpos)
         if self.task.action_noise:
@@ -208,7 +104,10 @@ class BaxterReachVectorEnv(gym.vector.VectorEnv):
         truncated = self.elapsed_steps >= self.task.horizon
         if (terminated | truncated).any():
             self.robot.stop(np.flatnonzero(terminated | truncated))
-        return reward, terminated, truncated, distances.max(axis=1)
+        return reward, terminated, truncated, {"distance": distances.max(axis=1)}
+
+    def _info(self) -> dict[str, np.ndarray]:
+        return {"distance": self._distances().max(axis=1)}
 
     def _distances(self) -> np.ndarray:
         return np.linalg.norm(self.robot.targets - self.robot.end_points, axis=2)
@@ -239,25 +138,12 @@ def _checked_robot(robot: Robot, num_envs: int, arms: tuple[str, ...], stand_in:
     return robot
 
 
-def _checked(actions, shape: tuple[int, ...]) -> np.ndarray:
-    actions = np.asarray(actions, dtype=np.float64)
-    if actions.shape != shape:
-        raise ValueError(f"expected actions of shape {shape}, got {actions.shape}")
-    finite = np.isfinite(actions)
-    if not finite.all():
-        bad = np.flatnonzero(~finite.all(axis=-1)).tolist() if actions.ndim == 2 else []
-        raise ValueError(f"non-finite actions{f' for envs {bad}' if bad else ''}: {actions[~finite].tolist()}")
-    return actions
-
-
-class BaxterReachEnv(gym.Env):
+class BaxterReachEnv(OneBaxterEnv):
     """A single Baxter: the vector env's physics and task for one env, without autoreset; ``robot``, e.g. a real
     Baxter, runs it instead of the simulation.
 
     ``reset(seed=s)`` gives the same episode as env i of a vector env reset with ``seed=[..., s, ...]``.
     """
-
-    metadata = _METADATA
 
     def __init__(
         self,
@@ -269,46 +155,16 @@ class BaxterReachEnv(gym.Env):
         robot: Robot | None = None,
         **task_options: Any,
     ) -> None:
-        self._vector = BaxterReachVectorEnv(
-            1, render_mode, task, threads=1, width=width, height=height, shadows=shadows, robot=robot, **task_options
+        super().__init__(
+            BaxterReachVectorEnv(
+                1,
+                render_mode,
+                task,
+                threads=1,
+                width=width,
+                height=height,
+                shadows=shadows,
+                robot=robot,
+                **task_options,
+            )
         )
-        self.render_mode = self._vector.render_mode
-        self.task = self._vector.task
-        self.observation_space = self._vector.single_observation_space
-        self.action_space = self._vector.single_action_space
-
-    @property
-    def robot(self) -> Robot:
-        return self._vector.robot
-
-    @property
-    def elapsed_steps(self) -> int:
-        return int(self._vector.elapsed_steps[0])
-
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        self._vector._randomness = _Randomness(per_env=[self.np_random])
-        self._vector._start(np.zeros(1, dtype=np.int64))
-        return self._vector._observe()[0], {"distance": float(self._vector._distances().max())}
-
-    def step(self, action) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if self._vector._randomness is None:
-            raise RuntimeError("call reset() before step()")
-        action = _checked(action, (self.task.num_joints,))
-        reward, terminated, truncated, distance = self._vector._advance(action[None])
-        return (
-            self._vector._observe()[0],
-            float(reward[0]),
-            bool(terminated[0]),
-            bool(truncated[0]),
-            {"distance": float(distance[0])},
-        )
-
-    def render(self) -> np.ndarray | None:
-        frames = self._vector.render()
-        return None if frames is None else frames[0]
-
-    def close(self) -> None:
-        self._vector.close()

@@ -9,23 +9,19 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from functools import cache
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from drrl.envs.baxter.env import _METADATA, SUBSTEPS, _check_render_mode, _checked, _Randomness
+from drrl.envs.baxter.env import SUBSTEPS
+from drrl.envs.baxter.native import NativeBaxterEnv, OneBaxterEnv
+from drrl.envs.baxter.render import STACK_VIEW
 from drrl.envs.baxter.scripted import ScriptedStacker
 from drrl.envs.baxter.simulation import BaxterBatch
 from drrl.envs.baxter.stacking import HORIZON, SETTLE_STEPS, StackTask
-
-if TYPE_CHECKING:
-    from drrl.envs.baxter.render import SceneRenderer
 
 
 def _spaces(task: StackTask) -> tuple[spaces.Box, spaces.Box]:
@@ -37,14 +33,14 @@ def _spaces(task: StackTask) -> tuple[spaces.Box, spaces.Box]:
     )
 
 
-class BaxterStackVectorEnv(gym.vector.VectorEnv):
-    """``num_envs`` Baxters stacking blocks together, stepped on MuJoCo's thread pool, with next-step autoreset.
-
-    Seeding as ``drrl.envs.baxter.env.BaxterReachVectorEnv``: one int for the batch, or one per env. Task options
-    (``blocks``, ``positions``, ``reward``, ``controller``, ...) are those of ``StackTask``.
+class BaxterStackVectorEnv(NativeBaxterEnv):
+    """``num_envs`` Baxters stacking blocks together, stepped on MuJoCo's thread pool, with next-step autoreset and the
+    seeding of ``drrl.envs.baxter.native.NativeBaxterEnv``. Task options (``blocks``, ``positions``, ``reward``,
+    ``controller``, ``demo_start``, ...) are those of ``StackTask``; ``width``, ``height`` and ``shadows`` set the
+    rgb_array frames, seen from close by the blocks.
     """
 
-    metadata = {**_METADATA, "autoreset_mode": AutoresetMode.NEXT_STEP}
+    view = STACK_VIEW
 
     def __init__(
         self,
@@ -57,73 +53,18 @@ class BaxterStackVectorEnv(gym.vector.VectorEnv):
         shadows: bool = False,
         **task_options: Any,
     ) -> None:
-        self.num_envs = num_envs
-        self.render_mode = _check_render_mode(render_mode)
-        self._render_options: dict[str, Any] = {"width": width, "height": height, "shadows": shadows}
+        super().__init__(num_envs, render_mode, {"width": width, "height": height, "shadows": shadows})
         self.task = task if task is not None else StackTask(**task_options)
         self.robot = BaxterBatch(num_envs, self.task.arms, SUBSTEPS, threads, blocks=self.task.blocks)
         self.single_observation_space, self.single_action_space = _spaces(self.task)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
-        self.elapsed_steps = np.zeros(num_envs, dtype=np.int64)
         self.standing_steps = np.zeros(num_envs, dtype=np.int64)
-        self._randomness: _Randomness | None = None
-        self._ended = np.zeros(num_envs, dtype=bool)
-        self._renderer: SceneRenderer | None = None
         self._hand = self.robot.model.body(f"{self.task.side}_hand").id
 
-    def reset(
-        self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start every env afresh (``seed`` as ``BaxterReachVectorEnv.reset``; ``options`` are not used)."""
-        if isinstance(seed, (int, np.integer)):
-            super().reset(seed=int(seed))
-            self._randomness = _Randomness(batch=self.np_random)
-        elif seed is not None:
-            if len(seed) != self.num_envs:
-                raise ValueError(f"expected one seed per env ({self.num_envs}), got {len(seed)}")
-            self._randomness = _Randomness(per_env=[np.random.default_rng(int(s)) for s in seed])
-        elif self._randomness is None:
-            self._randomness = _Randomness(batch=self.np_random)
-        self._start(np.arange(self.num_envs))
-        return self._observe(), self._info(np.zeros(self.num_envs, dtype=bool))
-
-    def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """One control period for every env; envs that ended on the previous step restart instead (reward 0)."""
-        if self._randomness is None:
-            raise RuntimeError("call reset() before step()")
-        actions = _checked(actions, (self.num_envs, self.task.action_size))
-        reward, terminated, truncated, stacked = self._advance(actions)
-        restarting = self._ended.nonzero()[0]
-        if restarting.size:
-            self._start(restarting)
-            reward[restarting] = 0.0
-            terminated[restarting] = truncated[restarting] = stacked[restarting] = False
-        self._ended = terminated | truncated
-        return self._observe(), reward, terminated, truncated, self._info(stacked)
-
-    def render(self) -> tuple[np.ndarray, ...] | None:
-        """One RGB frame per env, or None without render_mode 'rgb_array'."""
-        if self.render_mode is None or self._randomness is None:
-            return None
-        if self._renderer is None:
-            from drrl.envs.baxter.render import STACK_VIEW, SceneRenderer
-
-            self._renderer = SceneRenderer(self.robot.model, view=STACK_VIEW, **self._render_options)
-        return tuple(self._renderer.render(self.robot.data(i)) for i in range(self.num_envs))
-
-    def close(self, **kwargs: Any) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-        super().close(**kwargs)
-
-    # ------------------------------------------------------------------------------------------------ internals
-
     def _start(self, ids: np.ndarray) -> None:
-        assert self._randomness is not None
         task = self.task
-        uniform = self._randomness.uniform(ids, task.random_numbers_per_start)
+        uniform = self._random.uniform(ids, task.random_numbers_per_start)
         joints, blocks = task.starts(uniform)
         self.robot.restart(ids, joints, np.zeros((len(ids), 0, 3)), blocks)
         if task.demo_start:
@@ -131,11 +72,10 @@ class BaxterStackVectorEnv(gym.vector.VectorEnv):
             demo = (uniform[:, -2] * len(lengths)).astype(np.int64)
             step = (uniform[:, -1] * task.demo_start * lengths[demo]).astype(np.int64)
             self.robot.restore(ids, states[demo, step])
-        self.elapsed_steps[ids] = self.standing_steps[ids] = 0
-        self._ended[ids] = False
+        self.standing_steps[ids] = 0
 
-    def _advance(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Physics and reward of one control period: (reward, terminated, truncated, stacked), each (n,)."""
+    def _advance(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Physics and reward of one control period: (reward, terminated, truncated, info), each (n,)."""
         robot, task = self.robot, self.task
         velocities, openings = task.commands(actions, robot.qpos, self._jacobians)
         robot.step(np.clip(velocities, -task.max_velocity, task.max_velocity), openings)
@@ -146,9 +86,9 @@ class BaxterStackVectorEnv(gym.vector.VectorEnv):
         stacked = self.standing_steps >= SETTLE_STEPS
         failed = robot.in_contact | task.at_limit(robot.qpos)
         reward = task.rewards(standing, task.progress(blocks, touching, robot.grip_points), failed, self.elapsed_steps)
-        terminated = failed | stacked
         truncated = self.elapsed_steps >= task.horizon
-        return reward, terminated, truncated, stacked & ~failed
+        info = {"stacked": stacked & ~failed, "placed": task.placed(blocks[..., :3]).sum(axis=1)}
+        return reward, failed | stacked, truncated, info
 
     def _jacobians(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The grip point's Jacobian over the arm's joints (n, 6, 7), the gripper's frame (n, 3, 3), the point
@@ -163,8 +103,9 @@ class BaxterStackVectorEnv(gym.vector.VectorEnv):
         robot = self.robot
         return self.task.observe(robot.qpos, robot.qvel, robot.openings, robot.grip_points, robot.blocks)
 
-    def _info(self, stacked: np.ndarray) -> dict[str, Any]:
-        return {"stacked": stacked, "placed": self.task.placed(self.robot.blocks[..., :3]).sum(axis=1)}
+    def _info(self) -> dict[str, np.ndarray]:
+        placed = self.task.placed(self.robot.blocks[..., :3]).sum(axis=1)
+        return {"stacked": np.zeros(self.num_envs, dtype=bool), "placed": placed}
 
 
 DEMONSTRATIONS = 16  # recorded episodes of the scripted stacker per task, for starts from demonstrations
@@ -192,13 +133,11 @@ def demonstrations(arms: tuple[str, ...], blocks: int, positions: str) -> tuple[
     return np.stack(states, axis=1), lengths
 
 
-class BaxterStackEnv(gym.Env):
+class BaxterStackEnv(OneBaxterEnv):
     """A single Baxter stacking: the vector env's physics and task for one env, without autoreset.
 
     ``reset(seed=s)`` gives the same episode as env i of a vector env reset with ``seed=[..., s, ...]``.
     """
-
-    metadata = _METADATA
 
     def __init__(
         self,
@@ -209,41 +148,8 @@ class BaxterStackEnv(gym.Env):
         shadows: bool = False,
         **task_options: Any,
     ) -> None:
-        self._vector = BaxterStackVectorEnv(
-            1, render_mode, task, threads=1, width=width, height=height, shadows=shadows, **task_options
+        super().__init__(
+            BaxterStackVectorEnv(
+                1, render_mode, task, threads=1, width=width, height=height, shadows=shadows, **task_options
+            )
         )
-        self.render_mode = self._vector.render_mode
-        self.task = self._vector.task
-        self.observation_space = self._vector.single_observation_space
-        self.action_space = self._vector.single_action_space
-
-    @property
-    def robot(self) -> BaxterBatch:
-        return self._vector.robot
-
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        self._vector._randomness = _Randomness(per_env=[self.np_random])
-        self._vector._start(np.zeros(1, dtype=np.int64))
-        return self._vector._observe()[0], _first(self._vector._info(np.zeros(1, dtype=bool)))
-
-    def step(self, action) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if self._vector._randomness is None:
-            raise RuntimeError("call reset() before step()")
-        action = _checked(action, (self.task.action_size,))
-        reward, terminated, truncated, stacked = self._vector._advance(action[None])
-        info = _first(self._vector._info(stacked))
-        return self._vector._observe()[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), info
-
-    def render(self) -> np.ndarray | None:
-        frames = self._vector.render()
-        return None if frames is None else frames[0]
-
-    def close(self) -> None:
-        self._vector.close()
-
-
-def _first(info: dict[str, Any]) -> dict[str, Any]:
-    return {key: value[0].item() for key, value in info.items()}
