@@ -63,7 +63,7 @@ REWARDS = ("thesis", "dense")
 CONTROLLERS = ("velocity", "end_point")
 POSITIONS = ("fixed", "random")
 # Right-arm coordinates (m, base frame) of the blocks' centres on the table, and their yaw: every one is reached with
-# the gripper pointing down (checked by inverse kinematics in the tests); the left arm's are mirrored.
+# the gripper pointing down (the scripted stacker's tests grip each); the left arm's are mirrored.
 FIXED_BLOCKS = ((0.70, -0.35), (0.65, -0.55), (0.62, -0.18))
 BLOCK_YAW = np.pi / 4  # the gripper's closing axis at the neutral pose, so a block at rest lies square to the fingers
 POSITION_JITTER = 0.04  # m, random positions: ± this in x and y
