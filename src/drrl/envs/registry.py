@@ -103,7 +103,7 @@ def lookup(name: str) -> EnvEntry:
     env_id = aliases().get(name, name)
     if env_id not in gymnasium.registry:
         if not name.strip():
-            raise ValueError(f"the environment name is empty; drrl's own: {', '.join(aliases())}")
+            raise ValueError(f"the environment name is empty; drrl's own: {_listed(aliases())}")
         close = [
             match
             for match in difflib.get_close_matches(name[:200], [*aliases(), *gymnasium.registry], n=5, cutoff=0.8)
@@ -112,10 +112,23 @@ def lookup(name: str) -> EnvEntry:
         hint = f"did you mean {' or '.join(close)}? " if close else ""
         shown = repr(name) if len(name) <= 60 else repr(name[:57]) + "..."
         raise ValueError(
-            f"unknown environment {shown}; {hint}drrl's own: {', '.join(aliases())}; or any id "
+            f"unknown environment {shown}; {hint}drrl's own: {_listed(aliases())}; or any id "
             f"registered with Gymnasium (e.g. Pendulum-v1; gymnasium.pprint_registry() lists them)"
         )
     return ENTRIES.get(env_id) or gymnasium_entry(env_id)
+
+
+def _listed(names) -> str:
+    """Names for one line: a family of more than three sharing their first two words as one "family*" (`drrl train
+    --help` lists every alias)."""
+    families: dict[str, list[str]] = {}
+    for name in names:
+        families.setdefault("-".join(name.split("-")[:2]), []).append(name)
+    shown = [
+        f"{family}-* ({len(members)})" if len(members) > 3 else ", ".join(members)
+        for family, members in families.items()
+    ]
+    return ", ".join(shown) + " (`drrl train --help` lists them all)"
 
 
 def gymnasium_entry(env_id: str) -> EnvEntry:
