@@ -125,7 +125,7 @@ def _listed(names) -> str:
     for name in names:
         families.setdefault("-".join(name.split("-")[:2]), []).append(name)
     shown = [
-        f"{family}-* ({len(members)})" if len(members) > 3 else ", ".join(members)
+        f"{family}* ({len(members)} envs)" if len(members) > 3 else ", ".join(members)
         for family, members in families.items()
     ]
     return ", ".join(shown) + " (`drrl train --help` lists them all)"
