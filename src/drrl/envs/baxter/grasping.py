@@ -32,8 +32,6 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from functools import cache
 
-import numpy as np
-
 from drrl.envs.baxter.model import (
     ARM_BITS,
     END_POINT_OFFSET,
@@ -63,7 +61,7 @@ CLOSED_WIDTH = OPEN_WIDTH - 2 * FINGER_TRAVEL
 GRIP_STIFFNESS = 10_000.0  # N/m of mean closing: the servo saturates at 20 N 4 mm short of its target
 GRIP_DAMPING = 1_000.0  # N·s/m: 2 × 20 N / 1000 = 4 cm/s of closing at most
 GRIP_POINT = FINGER_BASE + FINGER_LENGTH - 0.02  # m beyond the hand frame: a grasped block's centre, 2 cm in
-PAD_TIME_CONSTANT = 0.01  # s: stiffer pad contacts than MuJoCo's 0.02, so a grip of 20 N sinks in 0.5 mm, not 2
+PAD_TIME_CONSTANT = 0.01  # s: stiffer pad contacts than MuJoCo's 0.02: a gripped block sinks 1.5 mm into a pad, not 2.1
 BLOCK_SIZE = 0.04  # m, a side
 PINE_DENSITY = 500.0  # kg/m³
 BLOCK = 8  # collision class of the blocks (see drrl.envs.baxter.model: SCENE 1, arms 2 and 4)
@@ -184,7 +182,7 @@ def _grip_actuators(root: ET.Element, moving_arms: tuple[str, ...]) -> None:
 
 def _sensors(root: ET.Element, moving_arms: tuple[str, ...], blocks: int) -> None:
     """Contact counts: failures (per arm: with the world's geoms, with the body's, with the other arm) first, then
-    for each moving arm, finger and block whether they touch (``sensor_layout`` gives the order)."""
+    for each moving arm, finger and block whether they touch (``BaxterBatch.touching`` reads them in this order)."""
     sensors = _add(root, "sensor")
     for side in SIDES:
         arm = f"{side}_arm_mount"
@@ -208,22 +206,7 @@ def _sensors(root: ET.Element, moving_arms: tuple[str, ...], blocks: int) -> Non
 FAILURE_SENSORS = 2 * len(SIDES) + 1  # the first sensors of ``_sensors``
 
 
-def touch_layout(moving_arms: tuple[str, ...], blocks: int) -> tuple[int, int]:
-    """The finger-block sensors' shape after the failure sensors: (arms × 2 fingers, blocks), arm by arm."""
-    return 2 * len(moving_arms), blocks
-
-
 @cache
 def load_grasping_model(moving_arms: tuple[str, ...] = ("right",), blocks: int = 2):
     """The compiled ``mujoco.MjModel`` of ``grasping_xml`` (cached: treat it as read-only)."""
     return import_mujoco().MjModel.from_xml_string(grasping_xml(moving_arms, blocks))
-
-
-def block_rest_height(level: int) -> float:
-    """The centre height (m, base frame) of a block resting at ``level`` of a stack (0: on the table)."""
-    return BLOCK_TOP_REST + level * BLOCK_SIZE
-
-
-def opening_width(opening: np.ndarray) -> np.ndarray:
-    """The distance between the pads (m) for an opening command in [0, 1], once the fingers have settled."""
-    return CLOSED_WIDTH + np.clip(opening, 0.0, 1.0) * (OPEN_WIDTH - CLOSED_WIDTH)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drrl.envs.baxter.grasping import FAILURE_SENSORS, FINGER_TRAVEL, load_grasping_model, touch_layout
+from drrl.envs.baxter.grasping import FAILURE_SENSORS, FINGER_TRAVEL, load_grasping_model
 from drrl.envs.baxter.model import ARM, SIDES, TIMESTEP, import_mujoco, load_model
 from drrl.envs.cores import available_cores
 
@@ -70,7 +70,6 @@ class BaxterBatch:
             self.num_blocks = int(blocks or 0)
             self._block_q = self.model.jnt_qposadr[[self.model.joint(f"block{k}").id for k in range(self.num_blocks)]]
             self._block_v = self.model.jnt_dofadr[[self.model.joint(f"block{k}").id for k in range(self.num_blocks)]]
-            self._touch = touch_layout(self.arms, self.num_blocks)
         self._warning_counts = self.batch.warning[:, :, 1]  # (num_sims, kinds): mjWarningStat's "number"
         self._warning_names = [mujoco.mjtWarning(k).name for k in range(self._warning_counts.shape[1])]
         self._stopped = np.zeros(num_sims, dtype=bool)
@@ -131,9 +130,9 @@ class BaxterBatch:
     @property
     def touching(self) -> np.ndarray:
         """Grasping scene: whether finger f of arm a touches block k, (num_sims, arms, 2, blocks)."""
-        arms_fingers, blocks = self._touch
-        found = self._sensors[:, FAILURE_SENSORS : FAILURE_SENSORS + arms_fingers * blocks] > 0
-        return found.reshape(self.num_robots, len(self.arms), 2, blocks)
+        shape = (self.num_robots, len(self.arms), 2, self.num_blocks)  # the order of the scene's sensors
+        found = self._sensors[:, FAILURE_SENSORS : FAILURE_SENSORS + np.prod(shape[1:])] > 0
+        return found.reshape(shape)
 
     def restart(self, ids: np.ndarray, qpos: np.ndarray, targets: np.ndarray, blocks: np.ndarray | None = None) -> None:
         """Put simulations ``ids`` at rest at joint angles ``qpos`` (n, joints) with ``targets`` (n, arms, 3); in the
