@@ -19,8 +19,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
-from gymnasium.vector.utils import batch_space
 
 from drrl.envs.baxter.model import TIMESTEP, load_model
 from drrl.envs.baxter.native import NativeBaxterEnv, OneBaxterEnv
@@ -30,15 +28,6 @@ from drrl.envs.baxter.standin import Actuation, StandIn
 from drrl.envs.baxter.task import CONTROL_PERIOD, ReachTask
 
 SUBSTEPS = round(CONTROL_PERIOD / TIMESTEP)  # physics steps per control period
-
-
-def _spaces(task: ReachTask) -> tuple[spaces.Box, spaces.Box]:
-    bound = np.finfo(np.float32).max  # the state is bounded, but loosely: keep the checker quiet
-    observation = spaces.Box(-bound, bound, (task.observation_size,), np.float32)
-    if task.controller == "joint_targets":
-        return observation, spaces.Box(-1.0, 1.0, (task.num_joints,), np.float32)
-    velocity = task.max_velocity.astype(np.float32)
-    return observation, spaces.Box(-velocity, velocity, dtype=np.float32)
 
 
 class BaxterReachVectorEnv(NativeBaxterEnv):
@@ -78,9 +67,10 @@ class BaxterReachVectorEnv(NativeBaxterEnv):
             model = self.stand_in.model(load_model(arms), arms)
             self.robot = BaxterBatch(num_envs, arms, SUBSTEPS, threads, model)
             self._actuation = Actuation(self.stand_in, num_envs, self.task.num_joints, CONTROL_PERIOD)
-        self.single_observation_space, self.single_action_space = _spaces(self.task)
-        self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.action_space = batch_space(self.single_action_space, num_envs)
+        if self.task.controller == "joint_targets":
+            self._use_spaces(self.task.observation_size, -np.ones(self.task.num_joints), np.ones(self.task.num_joints))
+        else:
+            self._use_spaces(self.task.observation_size, -self.task.max_velocity, self.task.max_velocity)
 
     def _start(self, ids: np.ndarray) -> None:
         joints, targets = self.task.starts(self._random.uniform(ids, self.task.random_numbers_per_start))

@@ -14,7 +14,9 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
 
 from drrl.envs.baxter.simulation import BaxterBatch
 from drrl.envs.baxter.task import CONTROL_PERIOD
@@ -65,6 +67,17 @@ class NativeBaxterEnv(gym.vector.VectorEnv):
         self._ended = np.zeros(num_envs, dtype=bool)  # ended on the previous step: restart on this one
         self._renderer: SceneRenderer | None = None
 
+    def _use_spaces(self, observation_size: int, action_low: np.ndarray, action_high: np.ndarray) -> None:
+        """The single and batched spaces: observations of ``observation_size`` (bounded loosely, which keeps
+        Gymnasium's checker quiet), actions in the Box from ``action_low`` to ``action_high``."""
+        bound = np.finfo(np.float32).max
+        self.single_observation_space = spaces.Box(-bound, bound, (observation_size,), np.float32)
+        self.single_action_space = spaces.Box(
+            np.asarray(action_low, np.float32), np.asarray(action_high, np.float32), dtype=np.float32
+        )
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+
     def reset(
         self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -88,7 +101,7 @@ class NativeBaxterEnv(gym.vector.VectorEnv):
         A restarting env returns its start observation, reward 0, terminated and truncated False, and the info of
         its start; its action is ignored (Gymnasium's next-step autoreset).
         """
-        self._random  # noqa: B018  (raises before a reset)
+        self._check_reset()
         actions = checked(actions, (self.num_envs, *(self.single_action_space.shape or ())))
         reward, terminated, truncated, info = self._advance(actions)
         restarting = self._ended.nonzero()[0]
@@ -121,9 +134,13 @@ class NativeBaxterEnv(gym.vector.VectorEnv):
 
     @property
     def _random(self) -> Randomness:
+        self._check_reset()
+        assert self._randomness is not None
+        return self._randomness
+
+    def _check_reset(self) -> None:
         if self._randomness is None:
             raise RuntimeError("call reset() before step()")
-        return self._randomness
 
     def _restart(self, ids: np.ndarray) -> None:
         self._start(ids)
@@ -172,7 +189,7 @@ class OneBaxterEnv(gym.Env):
         return self._vector._observe()[0], _first(self._vector._info())
 
     def step(self, action) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        self._vector._random  # noqa: B018  (raises before a reset)
+        self._vector._check_reset()
         action = checked(action, tuple(self.action_space.shape or ()))
         reward, terminated, truncated, info = self._vector._advance(action[None])
         observation = self._vector._observe()[0]

@@ -13,8 +13,6 @@ from functools import cache
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
-from gymnasium.vector.utils import batch_space
 
 from drrl.envs.baxter.env import SUBSTEPS
 from drrl.envs.baxter.native import NativeBaxterEnv, OneBaxterEnv
@@ -22,15 +20,6 @@ from drrl.envs.baxter.render import STACK_VIEW
 from drrl.envs.baxter.scripted import ScriptedStacker
 from drrl.envs.baxter.simulation import BaxterBatch
 from drrl.envs.baxter.stacking import HORIZON, SETTLE_STEPS, StackTask
-
-
-def _spaces(task: StackTask) -> tuple[spaces.Box, spaces.Box]:
-    bound = np.finfo(np.float32).max
-    low, high = task.action_bounds
-    return (
-        spaces.Box(-bound, bound, (task.observation_size,), np.float32),
-        spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32),
-    )
 
 
 class BaxterStackVectorEnv(NativeBaxterEnv):
@@ -56,9 +45,7 @@ class BaxterStackVectorEnv(NativeBaxterEnv):
         super().__init__(num_envs, render_mode, {"width": width, "height": height, "shadows": shadows})
         self.task = task if task is not None else StackTask(**task_options)
         self.robot = BaxterBatch(num_envs, self.task.arms, SUBSTEPS, threads, blocks=self.task.blocks)
-        self.single_observation_space, self.single_action_space = _spaces(self.task)
-        self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._use_spaces(self.task.observation_size, *self.task.action_bounds)
         self.standing_steps = np.zeros(num_envs, dtype=np.int64)
         self._hand = self.robot.model.body(f"{self.task.side}_hand").id
 
@@ -85,7 +72,10 @@ class BaxterStackVectorEnv(NativeBaxterEnv):
         self.standing_steps = np.where(standing, self.standing_steps + 1, 0)
         stacked = self.standing_steps >= SETTLE_STEPS
         failed = robot.in_contact | task.at_limit(robot.qpos)
-        reward = task.rewards(standing, task.progress(blocks, touching, robot.grip_points), failed, self.elapsed_steps)
+        progress = (
+            task.progress(blocks, touching, robot.grip_points) if task.reward == "dense" else np.zeros(len(blocks))
+        )
+        reward = task.rewards(standing, progress, failed, self.elapsed_steps)
         truncated = self.elapsed_steps >= task.horizon
         info = {"stacked": stacked & ~failed, "placed": task.placed(blocks[..., :3]).sum(axis=1)}
         return reward, failed | stacked, truncated, info
