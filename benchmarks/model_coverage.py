@@ -64,7 +64,7 @@ def main() -> None:
     )
     settings = config.model_based
     assert settings is not None
-    model = build_model(settings, env, args.seed)
+    model = build_model(settings, env.single_observation_space.shape[0], env.single_action_space, args.seed)
     fitting = fitting_settings(settings.fit_settings(True, entry.reward is None), buffer)
     fit_model(model, buffer, fitting, seed=args.seed)
     judged, _ = collect(policy, torch.stack([best] * 3), source, args.seed + 1, None)

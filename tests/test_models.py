@@ -6,13 +6,14 @@ import pytest
 import torch
 
 from drrl.envs.batch import make_batch_env
-from drrl.envs.cartpole import BalanceTask, PartiallyObservedTask, SwingUpTask
+from drrl.envs.cartpole import BalanceTask, PartiallyObservedTask, SwingUpTask, failure_reward
 from drrl.envs.registry import lookup
 from drrl.models import Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv, WorldModel
 from drrl.models import fit as fit_module
 from drrl.models.data import STILL
 from drrl.models.fit import clip_member_gradients, fit
 from drrl.models.kinds import MODEL_KINDS, make_model
+from drrl.models.outcome import fit_outcome
 from drrl.models.quality import k_step_errors, model_quality_report
 from drrl.policies import linear
 from drrl.rollout import evaluate
@@ -370,6 +371,25 @@ def test_the_imagined_env_can_use_the_models_own_reward_and_penalise_disagreemen
         env.reset(seed=[1, 2])
         rewards.append(env.step(np.zeros((2, 1), np.float32))[1])
     assert (rewards[1] < rewards[0]).all()
+
+
+def test_a_learned_outcome_tells_the_cartpoles_failures_and_pays_them_as_the_task_does():
+    env = EpisodeRecorder(make_batch_env("cartpole", 40))
+    env.reset(seed=0)
+    policy = linear(4, 1, bias=False)
+    evaluate(policy, 0.5 * torch.randn(40, 4, generator=torch.Generator().manual_seed(0)), env, 1, seed=None)
+    buffer = EpisodeBuffer(env.episodes())
+    outcome = fit_outcome(buffer, failure_reward, updates=600, seed=0)
+    rng = np.random.default_rng(1)
+    inside = np.zeros((200, 4), np.float32)  # well inside the bounds: |s| ≤ 1, |θ| ≤ 0.3
+    inside[:, 0], inside[:, 2] = rng.uniform(-1, 1, 200), rng.uniform(-0.3, 0.3, 200)
+    beyond = inside.copy()
+    beyond[:, 2] = np.sign(inside[:, 2]) * rng.uniform(0.8, 1.0, 200)  # the pole past 0.7 rad
+    steps = np.full(200, 30)
+    rewards, ends = outcome(inside, steps)
+    assert not ends.any() and (rewards >= -1).all() and (rewards <= 0).all()  # within the real steps' range
+    rewards, ends = outcome(beyond, steps)
+    assert ends.mean() > 0.95 and (rewards[ends] == -2.0 * (200 - 30)).all()  # 5.8's failure, from the step
 
 
 @pytest.mark.parametrize("kind", MODEL_KINDS)

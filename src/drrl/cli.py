@@ -23,7 +23,16 @@ from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.runs import RunFolder
 from drrl.search import SEARCHES
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
-from drrl.train import build_policy, check_same_spaces, open_run, prepare, prepare_resume, subscribers, trained_center
+from drrl.train import (
+    as_read,
+    build_policy,
+    check_same_spaces,
+    open_run,
+    prepare,
+    prepare_resume,
+    subscribers,
+    trained_center,
+)
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
 ERROR_LOG = "error.log"  # in the run folder: the traceback of whatever stopped the run
@@ -304,7 +313,8 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
         raise click.ClickException(f"{run_path}: {error}") from None
     step = checkpoint["iteration"] if final else checkpoint["best_iteration"]
     which = f"{'final' if final else 'best measured'} centre ({checkpoint.get('unit', 'generation')} {step})"
-    result = measure(policy, center, env, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
+    seen = as_read(config, checkpoint, env)
+    result = measure(policy, center, seen, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
     env.close()
     returns = result.episode_returns.flatten().numpy()
     click.echo(

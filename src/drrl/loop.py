@@ -132,6 +132,11 @@ class World(ABC):
         search's policies transformed observations."""
         return params
 
+    def measured_on(self, env: VectorEnv) -> VectorEnv:
+        """The env the loop measures the centre on, made of the real measuring ``env``: ``env`` itself, unless the
+        world's policies read something else of it (the latent of frames, ``drrl.model_based``)."""
+        return env
+
     def checkpoint_due(self, iteration: int) -> bool:
         return True
 

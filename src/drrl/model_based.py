@@ -15,6 +15,12 @@ Iterations repeat until the budget of real training episodes is spent. Real step
 (by ``drrl.rollout.evaluate``); imagined steps and episodes are counted apart. Every iteration is checkpointed with
 the model, the real episodes and the search, so a stopped run resumes exactly.
 
+On an env that observes frames (``drrl.envs.pixels``), step 2 starts by fitting a frame autoencoder to every real
+frame so far (``drrl.models.frames``) and encoding the real episodes into latent ones; the world model, imagination
+and the policy then work on the latent state, and real episodes and measurements see the env through the encoder.
+Where no reward is known in closed form (always, on frames), the reward and end are learned from the observations
+(``drrl.models.outcome``) after the model is fitted.
+
 Divergence: a model whose loss turns non-finite, or imagined returns that do, stop the run with
 ``ModelDiverged``; the checkpoint keeps the last whole iteration (its model, real episodes and search), so
 nothing before it is lost and no policy is trained on a broken model.
@@ -31,21 +37,23 @@ import torch
 from gymnasium.vector import VectorEnv
 
 from drrl.config import TrainConfig
-from drrl.envs.batch import RegisteredEnv
+from drrl.envs.batch import RegisteredEnv, is_frames
 from drrl.envs.registry import EnvEntry
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
 from drrl.models.base import LearnedModel
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, action_size
 from drrl.models.fit import FitReport, FitSettings
+from drrl.models.frames import Encoding, FrameAutoencoder, fit_autoencoder
 from drrl.models.imagined import ImaginedWorld
 from drrl.models.kinds import fit_model, make_model, remake
+from drrl.models.outcome import LearnedOutcome, fit_outcome
 from drrl.models.settings import ModelBasedSettings
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload, evaluate
 from drrl.search.base import Search
 
 # random streams of imagined episodes, model fitting and choosing explorers, apart from training and measuring
-IMAGINING, FITTING, EXPLORING = 2, 3, 4
+IMAGINING, FITTING, EXPLORING, SEEING = 2, 3, 4, 5
 LOSS_JUMP = 4.0  # a fit whose held-out loss exceeds the last iteration's this many times is done again afresh
 
 
@@ -88,7 +96,12 @@ class ModelBased(World):
         self.config, self.settings, self.policy, self.backend = config, settings, policy, backend
         self.real = RegisteredEnv(entry.env_id, config.engine)
         self.action_space = eval_env.single_action_space
-        self.model = build_model(settings, eval_env, config.seed, config.device)
+        seen = eval_env.single_observation_space
+        frames = is_frames(seen)
+        self.autoencoder = frame_autoencoder(seen.shape or (), settings, config.seed, config.device) if frames else None
+        self.frames = EpisodeBuffer()  # the real episodes as frames, where the env observes frames
+        observation_size = self.autoencoder.features if self.autoencoder else int(np.prod(seen.shape or ()))
+        self.model = build_model(settings, observation_size, eval_env.single_action_space, config.seed, config.device)
         if start_model is not None:  # another run's model to fine-tune (``drrl.train.transferred``)
             self.model.load_state_dict({name: tensor.to(config.device) for name, tensor in start_model.items()})
         self.real_horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
@@ -96,6 +109,8 @@ class ModelBased(World):
         known = settings.reward in ("auto", "known")
         self.known_reward = entry.reward if known else None
         self.complete_observation = entry.complete_observation if known else None
+        self.end_reward = None if self.known_reward else entry.end_reward
+        self.outcome: LearnedOutcome | None = None  # the reward and end learned where none is known
         self.buffer = EpisodeBuffer()
         self.sizes = iteration_sizes(config.budget, settings)
 
@@ -125,14 +140,24 @@ class ModelBased(World):
         if self.settings.exploration_bonus and iteration > 1:
             params = torch.cat([params[:1], self.optimistic_explorers(search, count - 1, counters, iteration)])
         episodes, real = collect(
-            self.policy, params, self.real, derive_seed(config.seed, iteration, TRAINING), config.max_steps
+            self.policy,
+            params,
+            self.real,
+            derive_seed(config.seed, iteration, TRAINING),
+            config.max_steps,
+            self.autoencoder,
         )
-        self.buffer.extend(episodes)
         counters.real_episodes += real.episodes
         counters.real_steps += real.steps
-        # 2. the model
+        # 2. the model (on frames, first what it reads of them)
         fit_start = time.perf_counter()
-        fit_now = fitting_settings(self.settings.fit_settings(iteration == 1, self.known_reward is None), self.buffer)
+        seeing = {}
+        if self.autoencoder is None:
+            self.buffer.extend(episodes)
+        else:
+            self.frames.extend(episodes)
+            seeing = self.see(iteration)
+        fit_now = fitting_settings(self.settings.fit_settings(iteration == 1, False), self.buffer)
         reports = fit_model(self.model, self.buffer, fit_now, seed=derive_seed(config.seed, iteration, FITTING))
         if any(report.stop == "diverged" for report in reports):
             raise ModelDiverged(f"iteration {iteration}: the world model's loss turned non-finite")
@@ -144,6 +169,9 @@ class ModelBased(World):
         )
         if refitted:
             reports = self.refit_afresh(reports, iteration)
+        if self.known_reward is None:
+            seed = derive_seed(config.seed, iteration, FITTING)
+            self.outcome = fit_outcome(self.buffer, self.end_reward, seed=seed)
         # 3. the search inside it, from real start states
         search_start = time.perf_counter()
         imagined = self.imagined_world(self.settings.disagreement_penalty)
@@ -179,9 +207,31 @@ class ModelBased(World):
             "held_out_episodes": reports[0].held_out_episodes,
             "refitted": int(refitted),
             "fit_updates": sum(report.updates for report in reports),
+            **seeing,
             "fit_time": round(search_start - fit_start, 3),
             "search_time": round(search_end - search_start, 3),
         }
+
+    def see(self, iteration: int) -> dict:
+        """Fit the frame autoencoder to every real frame so far (from its previous weights after the first fit) and
+        encode the real episodes into the latent ones the world model learns from; the fit's figures for the row."""
+        assert self.autoencoder is not None
+        first = iteration == 1
+        frames = np.concatenate([episode.observations for episode in self.frames.episodes])
+        fit = fit_autoencoder(
+            self.autoencoder,
+            frames,
+            self.settings.frame_updates if first else self.settings.frame_refit_updates,
+            seed=derive_seed(self.config.seed, iteration, SEEING),
+        )
+        self.buffer = EpisodeBuffer(
+            [dataclasses.replace(e, observations=self.autoencoder.encode(e.observations)) for e in self.frames.episodes]
+        )
+        return {"frame_loss": fit.loss, "frame_updates": fit.updates}
+
+    def measured_on(self, env: VectorEnv) -> VectorEnv:
+        """``env`` through the frame autoencoder where it observes frames (the policy reads their latent)."""
+        return env if self.autoencoder is None else Encoding(env, self.autoencoder)
 
     def imagine_centers(self, centers: torch.Tensor, iteration: int) -> torch.Tensor:
         """The imagined returns (C,) of ``centers`` (C, n) over a real episode's horizon, each on the same
@@ -215,7 +265,7 @@ class ModelBased(World):
             self.buffer.start_observations(),
             self.action_space,
             horizon or self.horizon,
-            self.known_reward,
+            self.known_reward or self.outcome,
             disagreement_penalty,
             self.complete_observation,
         )
@@ -229,7 +279,7 @@ class ModelBased(World):
         """
         seed = derive_seed(self.config.seed, iteration, FITTING)
         fresh = remake(self.model, seed)
-        settings = fitting_settings(self.settings.fit_settings(True, self.known_reward is None), self.buffer)
+        settings = fitting_settings(self.settings.fit_settings(True, False), self.buffer)
         fresh_reports = fit_model(fresh, self.buffer, settings, seed=seed)
         worse = held_out_loss(fresh_reports) >= held_out_loss(reports)
         if worse or any(report.stop == "diverged" for report in fresh_reports):
@@ -266,12 +316,19 @@ class ModelBased(World):
         return generation, tied
 
     def state_dict(self) -> dict:
-        model = {name: tensor.detach().cpu().clone() for name, tensor in self.model.state_dict().items()}
-        return {"model": model, "buffer": self.buffer.state_dict() if len(self.buffer) else {}}
+        state = {"model": copied(self.model), "buffer": self.buffer.state_dict() if len(self.buffer) else {}}
+        if self.autoencoder is not None:
+            state["autoencoder"] = copied(self.autoencoder)
+            state["frames"] = self.frames.state_dict() if len(self.frames) else {}
+        return state
 
     def load_state_dict(self, state: dict) -> None:
         self.model.load_state_dict({name: tensor.to(self.model.device) for name, tensor in state["model"].items()})
         self.buffer = EpisodeBuffer.from_state_dict(state["buffer"]) if state["buffer"] else EpisodeBuffer()
+        if self.autoencoder is not None:
+            device = self.model.device
+            self.autoencoder.load_state_dict({name: tensor.to(device) for name, tensor in state["autoencoder"].items()})
+            self.frames = EpisodeBuffer.from_state_dict(state["frames"]) if state["frames"] else EpisodeBuffer()
 
     def title(self, setup: Setup) -> str:
         settings = self.settings
@@ -282,6 +339,11 @@ class ModelBased(World):
 
     def close(self) -> None:
         self.backend.close()
+
+
+def copied(module: LearnedModel | torch.nn.Module) -> dict[str, torch.Tensor]:
+    """A model's weights as copies on the CPU."""
+    return {name: tensor.detach().cpu().clone() for name, tensor in module.state_dict().items()}
 
 
 def held_out_loss(reports: list[FitReport]) -> float:
@@ -296,18 +358,29 @@ def iteration_sizes(budget: int, settings: ModelBasedSettings) -> list[int]:
     return [settings.initial_episodes] + [settings.episodes_per_iteration] * later
 
 
-def build_model(settings: ModelBasedSettings, env: VectorEnv, seed: int, device: str = "cpu") -> LearnedModel:
-    """The ensemble of world models ``settings`` describes, for ``env``'s observation and action sizes."""
+def build_model(
+    settings: ModelBasedSettings, observation_size: int, action_space: gymnasium.Space, seed: int, device: str = "cpu"
+) -> LearnedModel:
+    """The ensemble of world models ``settings`` describes, for observations of ``observation_size`` numbers."""
     return make_model(
         settings.model_kind,
-        observation_size=int(np.prod(env.single_observation_space.shape or ())),
-        action_size=action_size(env.single_action_space),
+        observation_size=observation_size,
+        action_size=action_size(action_space),
         hidden=settings.hidden,
         future_inputs=settings.future_inputs,
         members=settings.ensemble_size,
         seed=seed,
         device=device,
     )
+
+
+def frame_autoencoder(
+    shape: tuple[int, ...], settings: ModelBasedSettings, seed: int, device: str = "cpu"
+) -> FrameAutoencoder:
+    """The frame autoencoder for frames of ``shape`` (F, H, W), its initial weights drawn from ``seed``."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return FrameAutoencoder((shape[0], shape[1], shape[2]), settings.latent_size).to(device)
 
 
 def episode_horizon(env_id: str, env: VectorEnv) -> int:
@@ -333,18 +406,25 @@ def exploring_policies(search: Search, count: int, with_center: bool) -> torch.T
 
 
 def collect(
-    policy: Policy, params: torch.Tensor, source: RegisteredEnv, seed: int, max_steps: int | None
+    policy: Policy,
+    params: torch.Tensor,
+    source: RegisteredEnv,
+    seed: int,
+    max_steps: int | None,
+    autoencoder: FrameAutoencoder | None = None,
 ) -> tuple[list[Episode], Evaluation]:
-    """One recorded real episode per row of ``params``, and the exact steps and episodes spent.
+    """One recorded real episode per row of ``params``, and the exact steps and episodes spent; the policies read
+    the env through ``autoencoder`` if given, and the episodes hold what the env gave (frames).
 
     The env is seeded here so that every episode starts from its own state: ``evaluate``'s seeding gives every
     candidate the same start (common random numbers), which would make all the collected episodes start alike.
     """
-    env = EpisodeRecorder(source.make(len(params)))
+    recorder = EpisodeRecorder(source.make(len(params)))
+    env = recorder if autoencoder is None else Encoding(recorder, autoencoder)
     try:
         env.reset(seed=seed)
         evaluation = evaluate(policy, params, env, 1, seed=None, max_steps=max_steps)
-        return env.episodes(), evaluation
+        return recorder.episodes(), evaluation
     finally:
         env.close()
 

@@ -16,14 +16,16 @@ from pathlib import Path
 
 import torch
 from gymnasium import spaces
+from gymnasium.vector import VectorEnv
 
 from drrl.action_space import ActionSpace
 from drrl.config import TrainConfig
-from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, make_batch_env, observation_size
+from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, is_frames, make_batch_env, observation_size
 from drrl.envs.registry import is_own, lookup
 from drrl.loop import Counters, Learner, Setup, Subscriber, World, check_checkpoint, restore, run
-from drrl.model_based import ModelBased
+from drrl.model_based import ModelBased, frame_autoencoder
 from drrl.model_free import ModelFree
+from drrl.models.frames import Encoding
 from drrl.models.settings import ModelBasedSettings
 from drrl.policies import Policy, make_policy
 from drrl.policy_gradient import POLICY_GRADIENTS, make_policy_gradient
@@ -36,8 +38,22 @@ from drrl.subscribers import ModelGuard, ProgressBar, RunFolderWriter, TensorBoa
 
 def build_policy(config: TrainConfig, env) -> Policy:
     return make_policy(
-        config.policy, observation_size(env.single_observation_space), ActionMap(env.single_action_space).size
+        config.policy, policy_inputs(config, env.single_observation_space), ActionMap(env.single_action_space).size
     )
+
+
+def policy_inputs(config: TrainConfig, space: spaces.Space) -> int:
+    """What the policy reads of an observation of ``space``: all of it, or for frames the latent state a
+    model-based run encodes them to (``drrl.models.frames``); a model-free run on frames is refused."""
+    if not is_frames(space):
+        return observation_size(space)
+    if config.model_based is None:
+        raise ValueError(
+            f"{config.env} observes frames {space.shape}, which a policy reads through the latent state a "
+            f"model-based run learns: add --model-based (or a [model_based] table)"
+        )
+    frames = (space.shape or (1,))[0]
+    return frames * config.model_based.latent_size  # ``FrameAutoencoder.features``
 
 
 def build_search(config: TrainConfig, policy: Policy, discrete: bool, center: torch.Tensor | None = None) -> Learner:
@@ -170,7 +186,7 @@ def prepare(
         evaluator.close()
         eval_env.close()
         raise
-    return Setup(config, entry, policy, search, world, eval_env)
+    return Setup(config, entry, policy, search, world, world.measured_on(eval_env))
 
 
 def prepare_resume(
@@ -259,6 +275,16 @@ def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> tor
             f"policy needs as many"
         )
     return checkpoint["center"] if final else checkpoint["best_center"]
+
+
+def as_read(config: TrainConfig, checkpoint: dict, env: VectorEnv) -> VectorEnv:
+    """``env`` as the run's policy reads it: through the run's frame autoencoder where the env observes frames."""
+    space = env.single_observation_space
+    if not is_frames(space) or config.model_based is None:
+        return env
+    autoencoder = frame_autoencoder(space.shape or (), config.model_based, config.seed)
+    autoencoder.load_state_dict(checkpoint["world"]["autoencoder"])
+    return Encoding(env, autoencoder)
 
 
 SpacePair = tuple[spaces.Space, spaces.Space]  # (observation space, action space)

@@ -9,22 +9,24 @@ own ffmpeg binary.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import gymnasium
 import numpy as np
 import torch
-from gymnasium.vector import SyncVectorEnv, VectorWrapper
+from gymnasium.vector import SyncVectorEnv, VectorEnv, VectorWrapper
 
-from drrl.envs.batch import ActionMap, missing_dependency, observation_size
+from drrl.envs.batch import ActionMap, missing_dependency
 from drrl.envs.baxter.model import import_mujoco
 from drrl.envs.registry import lookup
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
-from drrl.train import check_same_spaces, open_run, trained_center
+from drrl.train import as_read, check_same_spaces, open_run, policy_inputs, trained_center
 
 VIDEO_FORMATS = (".gif", ".mp4")
 INSTALL_MP4 = "writing MP4 needs imageio-ffmpeg: pip install 'drrl[render]' (or write a .gif)"
@@ -118,13 +120,16 @@ def record_episode(
     seed: int = 0,
     fps: float = 25.0,
     max_steps: int | None = None,
+    read: Callable[[VectorEnv], VectorEnv] | None = None,
 ) -> Recording:
     """Run the policy ``center`` (n,) for one episode of ``env`` (render_mode "rgb_array") through the rollout that
     trains and measures (``drrl.rollout.evaluate``, episode seed from ``seed``), keeping a frame at the start,
-    then every k-th step, k = the env's ``render_fps`` / ``fps`` rounded (at least 1), and at the end."""
+    then every k-th step, k = the env's ``render_fps`` / ``fps`` rounded (at least 1), and at the end. ``read``
+    gives the env as the policy reads it (a frame encoder in front, ``drrl.train.as_read``)."""
     rate = env.metadata.get("render_fps", fps)
     recorder = FrameRecorder(env, period=max(1, round(rate / fps)))
-    result = evaluate(policy, center.reshape(1, -1), recorder, 1, seed=seed, max_steps=max_steps)
+    seen = recorder if read is None else read(recorder)
+    result = evaluate(policy, center.reshape(1, -1), seen, 1, seed=seed, max_steps=max_steps)
     return Recording(recorder.frames, rate / recorder.period, float(result.returns[0]), result.steps, recorder.info)
 
 
@@ -163,9 +168,18 @@ def render_run(
             env.close()
             raise
     try:
-        policy = make_policy(config.policy, observation_size(env.observation_space), ActionMap(env.action_space).size)
+        inputs = policy_inputs(config, env.observation_space)
+        policy = make_policy(config.policy, inputs, ActionMap(env.action_space).size)
         center = trained_center(checkpoint, policy, final)
-        recording = record_episode(policy, center, env, seed=seed, fps=fps, max_steps=max_steps or config.max_steps)
+        recording = record_episode(
+            policy,
+            center,
+            env,
+            seed=seed,
+            fps=fps,
+            max_steps=max_steps or config.max_steps,
+            read=partial(as_read, config, checkpoint),
+        )
     except (ImportError, gymnasium.error.DependencyNotInstalled) as error:  # drawing needs pygame, say
         raise ValueError(f"{env_id} cannot draw frames here: {missing_dependency(env_id, error)}") from None
     finally:

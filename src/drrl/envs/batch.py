@@ -104,7 +104,8 @@ def make_batch_env(
             raise
         raise ValueError(f"{env_id} cannot be made with options {options}: {error}") from None
     try:
-        observation_size(env.single_observation_space)
+        if not is_frames(env.single_observation_space):
+            observation_size(env.single_observation_space)
         ActionMap(env.single_action_space)
     except ValueError:
         env.close()
@@ -122,6 +123,12 @@ def missing_dependency(env_id: str, error: Exception) -> str:
     if isinstance(error, ModuleNotFoundError):
         return f"its module {error.name!r} is not installed{hint}"
     return f"{error}{hint if 'pip install' not in str(error) else ''}"
+
+
+def is_frames(space: spaces.Space) -> bool:
+    """Whether observations of ``space`` are stacked grey frames (F, H, W) of uint8 (``drrl.envs.pixels``); a
+    model-based run encodes them (``drrl.models.frames``)."""
+    return isinstance(space, spaces.Box) and space.dtype == np.uint8 and len(space.shape) == 3
 
 
 def observation_size(space: spaces.Space) -> int:

@@ -358,7 +358,7 @@ class CartPoleVectorEnv(gym.vector.VectorEnv):
             self.state = self._sample_starts(np.arange(self.num_envs))
         self.elapsed_steps[:] = 0
         self._ended[:] = False
-        return self.task.observe(self.state), {}
+        return self._observe(), {}
 
     def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """One control period for every env; envs that ended on the previous step restart instead.
@@ -382,7 +382,7 @@ class CartPoleVectorEnv(gym.vector.VectorEnv):
             terminated[restarting] = False
             truncated[restarting] = False
         self._ended = terminated | truncated
-        return self.task.observe(self.state), reward, terminated, truncated, {}
+        return self._observe(), reward, terminated, truncated, {}
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         """One RGB frame (400, 600, 3) per env, or None without render_mode 'rgb_array'."""
@@ -390,6 +390,11 @@ class CartPoleVectorEnv(gym.vector.VectorEnv):
             return None
         half_length = self.physics.constants.half_length
         return tuple(render_frame(state, half_length) for state in self.state)
+
+    def _observe(self) -> np.ndarray:
+        """Every env's observation of its state (the camera's envs draw frames instead)."""
+        assert self.state is not None
+        return self.task.observe(self.state)
 
     def _sample_starts(self, indices: np.ndarray) -> np.ndarray:
         if self._seeded_starts is None:
@@ -434,7 +439,7 @@ class CartPoleEnv(gym.Env):
         super().reset(seed=seed)
         self.state = self.task.sample_starts(self.np_random, 1)[0]
         self.elapsed_steps = 0
-        return self.task.observe(self.state[None])[0], {}
+        return self._observe(), {}
 
     def step(self, action) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self.state is None:
@@ -449,7 +454,12 @@ class CartPoleEnv(gym.Env):
         self.elapsed_steps += 1
         reward, terminated = self.task.reward(states, self.elapsed_steps)
         truncated = self.elapsed_steps >= self.task.horizon
-        return self.task.observe(states)[0], float(reward[0]), bool(terminated[0]), truncated, {}
+        return self._observe(), float(reward[0]), bool(terminated[0]), truncated, {}
+
+    def _observe(self) -> np.ndarray:
+        """The observation of the state (the camera's env draws a frame instead)."""
+        assert self.state is not None
+        return self.task.observe(self.state[None])[0]
 
     def render(self) -> np.ndarray | None:
         """An RGB frame (400, 600, 3), or None without render_mode 'rgb_array'."""
@@ -533,6 +543,16 @@ def explain_swing_up(episode_returns, terminated) -> str:
     )
 
 
+def failure_reward(steps: np.ndarray) -> np.ndarray:
+    """5.8's reward for leaving the bounds at 1-based step t: −2·(T − t), known from the step alone."""
+    return -2.0 * (BalanceTask.horizon - np.asarray(steps, dtype=np.float64))
+
+
+def swing_up_failure_reward(steps: np.ndarray) -> np.ndarray:
+    """The swing-up's reward for leaving the track at 1-based step t: −(T − t)."""
+    return -1.0 * (SwingUpTask.horizon - np.asarray(steps, dtype=np.float64))
+
+
 def balance_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The thesis's reward 5.8 on observations (s, ṡ, θ, θ̇), or (s, θ) when partially observed: 5.8 reads only s
     and θ. Imagined episodes use it on predicted observations."""
@@ -564,7 +584,7 @@ SWING_UP_SETTINGS = {
 # Model-based: the same search in the model, 100 generations an iteration without an early stop (it climbs a long
 # plateau, a pole that swings up and turns over, too slowly for an early stop to tell progress), and an ensemble of
 # five LSTMs (about half the many-step error of the state-space RNN on this task), 30 real episodes.
-SWING_UP_MODEL_BASED_SETTINGS = {
+SWING_UP_MODEL_BASED_SETTINGS: dict[str, Any] = {
     **{name: value for name, value in SWING_UP_SETTINGS.items() if name not in ("budget", "eval_every")},
     "budget": 30,
     "model_based": {"model_kind": "lstm", "hidden": (32,), "ensemble_size": 5, "generations": 100, "patience": 100},
@@ -585,7 +605,12 @@ def _register() -> None:
     """drrl's entries for the three cart-poles."""
     from drrl.envs.registry import EnvEntry, register
 
-    balance: dict[str, Any] = {"verdict": balance_verdict, "explain": explain_balance, "reward": balance_reward}
+    balance: dict[str, Any] = {
+        "verdict": balance_verdict,
+        "explain": explain_balance,
+        "reward": balance_reward,
+        "end_reward": failure_reward,
+    }
     for entry, task in (
         (EnvEntry("drrl/CartPole-v0", "cartpole", **balance), None),
         (
@@ -604,6 +629,7 @@ def _register() -> None:
                 swing_up_verdict,
                 explain_swing_up,
                 swing_up_reward,
+                end_reward=swing_up_failure_reward,
                 defaults=SWING_UP_SETTINGS,
                 model_based_defaults=SWING_UP_MODEL_BASED_SETTINGS,
             ),

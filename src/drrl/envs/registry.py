@@ -1,14 +1,14 @@
 """Everything drrl knows about an environment, in one entry per environment.
 
-An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what "solved" means) and how
-``drrl eval`` explains it, the task's reward and end in closed form of the observation when there is one (imagined
-episodes then use it instead of a learned reward) and the observation entries that follow in closed form from the
-others (imagined observations are completed by it), and settings that suit the task. Each environment registers its
-entry from its own module (``register``), which also registers it with Gymnasium. An environment that drrl
-does not know is any registered Gymnasium id; its entry has the verdict "solved" where Gymnasium gives the task a
+An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what "solved" means) and how ``drrl
+eval`` explains it, the task's reward and end in closed form of the observation when there is one (imagined episodes
+then use it instead of a learned reward) and the observation entries that follow in closed form from the others
+(imagined observations are completed by it), the reward of a step that ends the episode where the step alone decides
+it (imagined episodes with a learned end then pay it), and settings that suit the task. Each environment registers
+its entry from its own module (``register``), which also registers it with Gymnasium. An environment that drrl does
+not know is any registered Gymnasium id; its entry has the verdict "solved" where Gymnasium gives the task a
 ``reward_threshold`` or the field a usual level (a mean return at or above it), and settings that reach it where
-they were measured (``drrl.envs.gymnasium_tasks``).
-"""
+they were measured (``drrl.envs.gymnasium_tasks``)."""
 
 from __future__ import annotations
 
@@ -29,6 +29,8 @@ Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
 Explanation = Callable[[torch.Tensor, torch.Tensor], str]
 # (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,))
 RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+# 1-based steps (N,) at which episodes end by termination -> the rewards of those steps (N,)
+EndReward = Callable[[np.ndarray], np.ndarray]
 # (observations (N, o), predicted next observations (N, o)) -> the next ones with the entries that follow from the
 # rest recomputed
 ObservationFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -44,6 +46,7 @@ class EnvEntry:
     explain: Explanation | None = None
     reward: RewardFunction | None = None
     complete_observation: ObservationFunction | None = None  # e.g. Baxter's end-point offsets from its joint angles
+    end_reward: EndReward | None = None  # a terminating step's reward where only the step decides it (5.8's failure)
     suggested: dict = field(default_factory=dict)  # TrainConfig settings that suit the task
     defaults: dict = field(default_factory=dict)  # TrainConfig settings a model-free run on the task starts from
     model_based_defaults: dict = field(default_factory=dict)  # the same for a model-based run, with its table

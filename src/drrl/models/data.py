@@ -199,11 +199,13 @@ class EpisodeRecorder(VectorWrapper):
 
     The actions recorded are those the env receives (after the policy's outputs are bounded; a Discrete choice
     one-hot), so the model learns the env's own response to them. Later episodes of a sub-environment (after its
-    autoreset) are not recorded.
+    autoreset) are not recorded. Observations are kept as float32, frames (uint8) as they are.
     """
 
     def __init__(self, env: VectorEnv):
         super().__init__(env)
+        space_type = env.single_observation_space.dtype
+        self._dtype = np.uint8 if space_type == np.uint8 else np.float32
         self._reset_records()
 
     def _reset_records(self) -> None:
@@ -217,14 +219,14 @@ class EpisodeRecorder(VectorWrapper):
         observations, info = self.env.reset(**kwargs)
         self._reset_records()
         for i in range(self.num_envs):
-            self._observations[i].append(np.array(observations[i], dtype=np.float32))
+            self._observations[i].append(np.array(observations[i], dtype=self._dtype))
         return observations, info
 
     def step(self, actions):
         observations, rewards, terminated, truncated, info = self.env.step(actions)
         actions = model_actions(actions, self.single_action_space)
         for i in np.flatnonzero(self._recording):
-            self._observations[i].append(np.array(observations[i], dtype=np.float32))
+            self._observations[i].append(np.array(observations[i], dtype=self._dtype))
             self._actions[i].append(actions[i])
             self._rewards[i].append(float(rewards[i]))
         self._terminated |= self._recording & terminated

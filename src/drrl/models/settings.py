@@ -100,6 +100,20 @@ class ModelBasedSettings(BaseModel):
         f"{VALIDATE_EVERY} updates",
     )
 
+    latent_size: int = Field(
+        8,
+        ge=1,
+        le=4096,
+        description="frames only: the numbers of a frame's code (the latent state: the newest frame's code and its "
+        "changes since the older frames)",
+    )
+    frame_updates: int = Field(
+        1000, ge=1, le=10**7, description="frames only: gradient steps of the frame autoencoder's first fit"
+    )
+    frame_refit_updates: int = Field(
+        200, ge=1, le=10**7, description="frames only: gradient steps of every later fit, from the previous weights"
+    )
+
     @field_validator(*CHOICES)
     @classmethod
     def _known_choice(cls, value: str, info: ValidationInfo) -> str:

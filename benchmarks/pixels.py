@@ -1,0 +1,116 @@
+"""The cart-pole through the camera (drrl.envs.pixels): how fast frames are drawn, and what a run's world model
+imagines from them.
+
+``--throughput``: frames a second of the pixel env against steps a second of the state env, batches of 1 and 100
+(median of ``--repeats`` rounds, the two envs alternating). ``--figure RUN``: real frames beside the model's imagined
+frames over ``--steps`` steps from the same start, with the same actions: a real episode of the run's best centre
+policy, then the run's world model (its first member) fed the encoded first frame and those actions, its own
+predictions fed back (dynamical consistency), each predicted latent drawn by the run's autoencoder.
+
+    python benchmarks/pixels.py --throughput
+    python benchmarks/model_based.py --env cartpole-pixels --seeds 5      # episodes to balanced from frames
+    drrl train cartpole-pixels --model-based --out runs/pixels
+    python benchmarks/pixels.py --figure runs/pixels --out docs/images/cartpole_pixels_imagined.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import torch
+
+import drrl.envs  # noqa: F401  (registers the envs)
+from drrl.envs.batch import make_batch_env
+from drrl.model_based import ModelBased
+from drrl.models.data import EpisodeRecorder
+from drrl.models.frames import Encoding
+from drrl.rollout import evaluate
+from drrl.runs import RunFolder
+from drrl.train import open_run, prepare
+
+
+def steps_per_second(env_id: str, num_envs: int, steps: int = 200) -> float:
+    env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point")
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-0.2, 0.2, (steps, num_envs, 1))
+    start = time.perf_counter()
+    for action in actions:
+        env.step(action)
+    return steps * num_envs / (time.perf_counter() - start)
+
+
+def throughput(repeats: int) -> None:
+    print("| batch | pixel env, frames/s | state env, steps/s | ratio |")
+    print("| --- | --- | --- | --- |")
+    for num_envs in (1, 100):
+        rounds = [
+            (steps_per_second("drrl/CartPolePixels-v0", num_envs), steps_per_second("drrl/CartPole-v0", num_envs))
+            for _ in range(repeats)
+        ]
+        pixels, states = (statistics.median(column) for column in zip(*rounds, strict=True))
+        print(f"| {num_envs} | {pixels:,.0f} | {states:,.0f} | {pixels / states:.3f} |")
+
+
+@torch.inference_mode()
+def figure(run: Path, out: Path, steps: int, seed: int) -> None:
+    config, checkpoint = open_run(RunFolder(run))
+    setup = prepare(config)
+    world = setup.world
+    assert isinstance(world, ModelBased) and world.autoencoder is not None, f"{run} is not a model-based run on frames"
+    world.load_state_dict(checkpoint["world"])
+    recorder = EpisodeRecorder(make_batch_env(setup.entry.env_id, 1))
+    evaluate(setup.policy, checkpoint["best_center"][None], Encoding(recorder, world.autoencoder), 1, seed, steps)
+    setup.close()
+    episode = recorder.episodes()[0]
+    latent = torch.as_tensor(world.autoencoder.encode(episode.observations[:1]))
+    state, imagined = world.model.initial_state(1), []
+    for t, action in enumerate(torch.as_tensor(episode.actions)):
+        prediction, state = world.model.step(latent, action[None], state, t == 0)
+        latent = prediction.observations[0]
+        imagined.append(latent[0].numpy())
+    dreamt = world.autoencoder.draw(np.stack(imagined))
+    plot(episode.observations[1:], dreamt, out, title=f"{setup.entry.env_id}: real (top) and imagined (bottom)")
+
+
+def plot(real: np.ndarray, imagined: np.ndarray, out: Path, title: str, columns: int = 10) -> None:
+    import matplotlib.pyplot as plt
+
+    shown = np.linspace(0, len(real) - 1, min(columns, len(real))).round().astype(int)
+    fig, axes = plt.subplots(2, len(shown), figsize=(1.3 * len(shown), 3), squeeze=False)
+    for column, t in enumerate(shown):
+        for row, frames in enumerate((real, imagined)):
+            axes[row, column].imshow(frames[t, 0], cmap="gray", vmin=0, vmax=255)
+            axes[row, column].set_xticks([])
+            axes[row, column].set_yticks([])
+        axes[1, column].set_xlabel(f"step {t + 1}")
+    axes[0, 0].set_ylabel("real")
+    axes[1, 0].set_ylabel("imagined")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+    print(f"wrote {out}: {len(real)} steps, frames {', '.join(str(t + 1) for t in shown)}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--throughput", action="store_true")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--figure", type=Path, help="a model-based run folder on frames")
+    parser.add_argument("--out", type=Path, default=Path("imagined_frames.png"))
+    parser.add_argument("--steps", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    if args.throughput:
+        throughput(args.repeats)
+    if args.figure:
+        figure(args.figure, args.out, args.steps, args.seed)
+
+
+if __name__ == "__main__":
+    main()
