@@ -41,7 +41,9 @@ def shortened(config: TrainConfig) -> TrainConfig:
     settings = config.model_based
     if settings is None:
         return config.model_copy(update={"budget": config.popsize * config.episodes_per_candidate})
-    settings = settings.model_copy(update={"generations": 2, "fit_updates": 5, "refit_updates": 5})
+    settings = settings.model_copy(
+        update={"generations": 2, "fit_updates": 5, "refit_updates": 5, "frame_updates": 5, "frame_refit_updates": 5}
+    )
     budget = settings.initial_episodes + settings.episodes_per_iteration
     return config.model_copy(update={"budget": budget, "model_based": settings})
 

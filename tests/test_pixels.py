@@ -154,7 +154,7 @@ PIXELS = TrainConfig.model_validate(
 )
 
 
-def test_a_pixel_run_learns_on_latents_resumes_exactly_and_eval_reads_its_frames_through_its_encoder(tmp_path):
+def test_a_pixel_run_learns_on_latents_resumes_exactly_and_eval_and_render_read_frames_through_its_encoder(tmp_path):
     whole, stopped = tmp_path / "whole", tmp_path / "stopped"
     counters = train(PIXELS, whole)
     assert counters.real_episodes == 6 and counters.imagined_episodes > 0
@@ -174,3 +174,5 @@ def test_a_pixel_run_learns_on_latents_resumes_exactly_and_eval_reads_its_frames
     result = CliRunner().invoke(main, ["eval", str(whole), "--episodes", "4"])
     assert result.exit_code == 0, result.output
     assert "drrl/CartPolePixels-v0" in result.output and "balanced:" in result.output
+    result = CliRunner().invoke(main, ["render", str(whole), "--out", str(tmp_path / "episode.gif")])
+    assert result.exit_code == 0 and (tmp_path / "episode.gif").stat().st_size > 0, result.output

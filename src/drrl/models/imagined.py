@@ -123,7 +123,7 @@ class ImaginedEnv(VectorEnv):
         disagreement_penalty: float = 0.0,
         complete_observation: ObservationFunction | None = None,
     ):
-        starts = np.asarray(start_observations, dtype=np.float32)
+        starts = np.array(start_observations, dtype=np.float32)  # a copy: a Ray worker's arrays are read-only
         if starts.ndim != 2 or len(starts) == 0:
             raise ValueError(f"start_observations must be a non-empty (S, o) array, got shape {starts.shape}")
         self.model = model

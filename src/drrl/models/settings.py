@@ -34,12 +34,12 @@ class ModelBasedSettings(BaseModel):
     """The world model, its fitting, and the data loop around PGPE.
 
     reward: "known" (the task's reward in closed form on predicted observations, first completed by the entries that
-    follow in closed form from the others where the task has such, ``EnvEntry.complete_observation``), "learned"
-    (the model's reward and end heads) or "auto": known where drrl knows it (the env's ``EnvEntry.reward``), learned
-    elsewhere. Known is the default where possible because the thesis's 5.8 is discontinuous in the state (0
-    inside |s|, |θ| ≤ 0.05, −1 outside) and depends on the step t, which the model does not observe: a learned head
-    could only blur it, while the closed form is exact and free.
-    """
+    follow in closed form from the others where the task has such, ``EnvEntry.complete_observation``), "learned" (a
+    small network fitted to read the reward and end off the next observation, ``drrl.models.outcome``) or "auto":
+    known where drrl knows it (the env's ``EnvEntry.reward``), learned elsewhere. Known is the default where
+    possible because the thesis's 5.8 is discontinuous in the state (0 inside |s|, |θ| ≤ 0.05, −1 outside) and
+    depends on the step t, which the model does not observe: a learned head could only blur it, while the closed
+    form is exact and free."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
