@@ -1,14 +1,15 @@
 """Everything drrl knows about an environment, in one entry per environment.
 
-An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what "solved" means) and how ``drrl
-eval`` explains it, the task's reward and end in closed form of the observation when there is one (imagined episodes
-then use it instead of a learned reward) and the observation entries that follow in closed form from the others
-(imagined observations are completed by it), the reward of a step that ends the episode where the step alone decides
-it (imagined episodes with a learned end then pay it), and settings that suit the task. Each environment registers
-its entry from its own module (``register``), which also registers it with Gymnasium. An environment that drrl does
-not know is any registered Gymnasium id; its entry has the verdict "solved" where Gymnasium gives the task a
+An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what "solved" means) and how
+``drrl eval`` explains it, the task's reward and end in closed form of the observation when there is one (imagined
+episodes then use it instead of a learned reward) and the observation entries that follow in closed form from the
+others (imagined observations are completed by it), the reward of a step that ends the episode where the step alone
+decides it (imagined episodes with a learned end then pay it), and settings that suit the task. Each environment
+registers its entry from its own module (``register``), which also registers it with Gymnasium. An environment that
+drrl does not know is any registered Gymnasium id; its entry has the verdict "solved" where Gymnasium gives the task a
 ``reward_threshold`` or the field a usual level (a mean return at or above it), and settings that reach it where
-they were measured (``drrl.envs.gymnasium_tasks``)."""
+they were measured (``drrl.envs.gymnasium_tasks``).
+"""
 
 from __future__ import annotations
 
