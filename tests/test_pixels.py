@@ -126,6 +126,14 @@ def test_a_model_free_run_on_frames_is_refused_in_one_line(tmp_path):
     assert not (tmp_path / "run").exists()
 
 
+def test_compare_on_frames_runs_only_the_model_based_method_and_refuses_the_others_in_one_line(tmp_path):
+    command = ["compare", "--env", "cartpole-pixels", "--method", "SyS-PGPE", "--out", str(tmp_path / "out")]
+    result = CliRunner().invoke(main, command)
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert result.exit_code == 2 and len(errors) == 1 and "--method 'model-based PGPE'" in errors[0], result.output
+    assert not (tmp_path / "out").exists()
+
+
 # a pixel run that only needs to work: a few updates of everything
 PIXELS = TrainConfig.model_validate(
     dict(

@@ -14,6 +14,7 @@ from pydantic import ValidationError
 from drrl.cli_params import INTEGER
 from drrl.compare import DEFAULT_METHODS, METHODS, MODEL_BASED, PPO, compare, method_config
 from drrl.config import describe_errors, load_config_file
+from drrl.envs.batch import is_frames, make_batch_env
 from drrl.envs.registry import own_entry
 from drrl.models.kinds import MODEL_KINDS
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
@@ -101,6 +102,17 @@ def with_model_based(settings: dict, model_based: bool, model_options: dict) -> 
     return {**settings, "model_based": {**(settings.get("model_based") or {}), **model_options}}
 
 
+def observes_frames(env: str) -> bool:
+    """Whether ``env`` observes frames (``drrl.envs.pixels``); an env that cannot be made is refused in one line."""
+    try:
+        probe = make_batch_env(env, 1)
+    except ValueError as error:
+        raise click.UsageError(str(error)) from None
+    frames = is_frames(probe.single_observation_space)
+    probe.close()
+    return frames
+
+
 @click.command("compare")
 @click.option("--env", default="cartpole", show_default=True, help="Environment to compare the methods on.")
 @click.option("--seeds", type=click.IntRange(min=1), default=3, show_default=True, help="seeds per method")
@@ -151,7 +163,13 @@ def compare_command(env, seeds, budget, model_based_budget, methods, config_file
     if model_based_budget is None:
         own = entry.model_based_defaults if entry else {}
         model_based_budget = own.get("budget", MODEL_BASED_DEFAULTS["budget"])
-    methods = methods or DEFAULT_METHODS
+    frames = observes_frames(env)
+    methods = methods or ((MODEL_BASED,) if frames else DEFAULT_METHODS)
+    if frames and set(methods) != {MODEL_BASED}:
+        raise click.UsageError(
+            f"{env} observes frames, which only {MODEL_BASED!r} learns from (it encodes them); use "
+            f"--method {MODEL_BASED!r}"
+        )
     try:  # every method's config is checked before any run starts
         for method in methods:
             if method != PPO:
