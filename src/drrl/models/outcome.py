@@ -3,10 +3,12 @@ closed form (a Gymnasium env without one, a latent state of frames).
 
 A small tanh network reads an observation o_{t+1} and predicts the reward r_{t+1} of the step into it and the
 probability that the episode ends there; it is fitted to every real step so far (squared error on the standardised
-reward, binary cross-entropy on the end). Imagined episodes then call it as they call a task's closed-form reward
-(``drrl.models.imagined``): an end where p > ½, and, where the task pays an ending step a reward known from the step
-alone (``end_reward``, 5.8's failure −2·(T − t)), that reward there. The prediction is kept within the range of the
-real rewards seen, so that a search cannot climb where the network extrapolates beyond anything real.
+reward, binary cross-entropy on the end, its ending steps weighted to count as much as all the others, since an
+episode ends once and a miss costs a search every failure). Imagined episodes then call it as they call a task's
+closed-form reward (``drrl.models.imagined``): an end where p > ½, and, where the task pays an ending step a reward
+known from the step alone (``end_reward``, 5.8's failure −2·(T − t)), that reward there. The prediction is kept
+within the range of the real rewards seen, so that a search cannot climb where the network extrapolates beyond
+anything real.
 
 Beyond the thesis, whose model predicts only the next observation: a reward and an end read off the observation
 (as PlaNet and Dreamer read them off their latent state, and as 5.8 reads s and θ) are a plain regression and
