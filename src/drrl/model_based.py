@@ -40,7 +40,7 @@ from drrl.config import TrainConfig
 from drrl.envs.batch import RegisteredEnv, is_frames
 from drrl.envs.registry import EnvEntry
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
-from drrl.models.base import LearnedModel
+from drrl.models.base import LearnedModel, weights
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, action_size
 from drrl.models.fit import FitReport, FitSettings
 from drrl.models.frames import Encoding, FrameAutoencoder, fit_autoencoder
@@ -316,9 +316,9 @@ class ModelBased(World):
         return generation, tied
 
     def state_dict(self) -> dict:
-        state = {"model": copied(self.model), "buffer": self.buffer.state_dict() if len(self.buffer) else {}}
+        state = {"model": weights(self.model), "buffer": self.buffer.state_dict() if len(self.buffer) else {}}
         if self.autoencoder is not None:
-            state["autoencoder"] = copied(self.autoencoder)
+            state["autoencoder"] = weights(self.autoencoder)
             state["frames"] = self.frames.state_dict() if len(self.frames) else {}
         return state
 
@@ -339,11 +339,6 @@ class ModelBased(World):
 
     def close(self) -> None:
         self.backend.close()
-
-
-def copied(module: LearnedModel | torch.nn.Module) -> dict[str, torch.Tensor]:
-    """A model's weights as copies on the CPU."""
-    return {name: tensor.detach().cpu().clone() for name, tensor in module.state_dict().items()}
 
 
 def held_out_loss(reports: list[FitReport]) -> float:

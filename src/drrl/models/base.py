@@ -68,6 +68,11 @@ class LearnedModel(Protocol):
     def load_state_dict(self, state: dict[str, torch.Tensor]): ...
 
 
+def weights(model: LearnedModel | torch.nn.Module) -> dict[str, torch.Tensor]:
+    """A model's state (weights and buffers) as copies on the CPU, to keep or to send to another process."""
+    return {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
+
+
 def per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
     """Per-member ``values`` (K, *v) shaped to broadcast against ``like`` (K, …, *v)."""
     return values.reshape(values.shape[0], *[1] * (like.dim() - values.dim()), *values.shape[1:])

@@ -27,13 +27,19 @@ STILL = 1e-6
 
 @dataclass(frozen=True)
 class Episode:
-    observations: np.ndarray  # (n + 1, o) float32
+    observations: np.ndarray  # (n + 1, o) float32, or frames (n + 1, F, H, W) uint8
     actions: np.ndarray  # (n, a) float32
     rewards: np.ndarray  # (n,) float32
     terminated: bool  # ended by failure or success, not by a time limit
 
     def __len__(self) -> int:
         return len(self.actions)
+
+    def ends(self) -> np.ndarray:
+        """(n,) float32: 1.0 at the step that ended the episode by termination, else 0.0."""
+        ends = np.zeros(len(self), dtype=np.float32)
+        ends[-1] = float(self.terminated)
+        return ends
 
 
 @dataclass(frozen=True)
@@ -167,8 +173,7 @@ def _episode_windows(episode: Episode, unfold: int, length: int) -> tuple[np.nda
     steps = starts[:, None] + np.arange(length)  # (W, L) step indices, possibly past the end
     mask = steps < n
     inside = np.minimum(steps, n - 1)
-    ends = np.zeros(n, dtype=np.float32)
-    ends[-1] = float(episode.terminated)
+    ends = episode.ends()
     return (
         episode.observations[inside],
         episode.actions[inside],

@@ -30,7 +30,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from drrl.models.base import LearnedModel
+from drrl.models.base import LearnedModel, weights
 from drrl.models.data import model_actions
 
 # (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,)): a task's reward in closed form,
@@ -68,11 +68,10 @@ class ImaginedWorld:
         disagreement_penalty: float = 0.0,
         complete_observation: ObservationFunction | None = None,
     ) -> ImaginedWorld:
-        state = {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
         return cls(
             type(model),
             model.settings(),
-            state,
+            weights(model),
             np.asarray(start_observations, dtype=np.float32),
             action_space,
             horizon,

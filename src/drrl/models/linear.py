@@ -207,14 +207,12 @@ def _fit_member(model: LinearModel, k: int, training: EpisodeBuffer, learn_rewar
         observations.append(episode.observations[:-1])
         current.append(episode.actions)
         previous.append(np.concatenate([np.zeros_like(episode.actions[:1]), episode.actions[:-1]]))
-        ends = np.zeros(len(episode), dtype=np.float32)
-        ends[-1] = float(episode.terminated)
         targets.append(
             np.column_stack(
                 [
                     np.diff(episode.observations, axis=0) / scales["change_scale"].numpy(),
                     (episode.rewards - scales["reward_mean"].numpy()) / scales["reward_scale"].numpy(),
-                    ends,
+                    episode.ends(),
                 ]
             )
         )

@@ -21,11 +21,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
 from torch import nn
 
+from drrl.models.base import weights
 from drrl.models.data import EpisodeBuffer
 
 EndReward = Callable[[np.ndarray], np.ndarray]  # 1-based steps (N,) of ending steps -> their rewards (N,)
@@ -67,7 +69,7 @@ class LearnedOutcome:
     end_reward: EndReward | None = None
 
     def __call__(self, observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        network = self.network()
+        network = self.network
         with torch.inference_mode():
             reward, logit = network(torch.as_tensor(observations, dtype=torch.float32))
             reward = reward * network.reward_scale + network.reward_mean
@@ -77,14 +79,13 @@ class LearnedOutcome:
             rewards = np.where(ends, self.end_reward(steps), rewards)
         return rewards, ends
 
+    @cached_property
     def network(self) -> OutcomeNetwork:
-        cached = self.__dict__.get("_network")
-        if cached is None:
-            with torch.random.fork_rng(devices=[]):
-                cached = OutcomeNetwork(**self.settings)
-            cached.load_state_dict(self.state)
-            object.__setattr__(self, "_network", cached)
-        return cached
+        """The network, built from ``settings`` and ``state`` on the first call and kept."""
+        with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace
+            network = OutcomeNetwork(**self.settings)
+        network.load_state_dict(self.state)
+        return network
 
 
 def fit_outcome(
@@ -98,7 +99,7 @@ def fit_outcome(
     ``end_reward`` the rewards of ending steps are the task's and are not fitted."""
     observations = np.concatenate([episode.observations[1:] for episode in buffer.episodes])
     rewards = np.concatenate([episode.rewards for episode in buffer.episodes]).astype(np.float32)
-    ends = np.concatenate([_ends(episode.terminated, len(episode)) for episode in buffer.episodes])
+    ends = np.concatenate([episode.ends() for episode in buffer.episodes])
     fitted = ~ends.astype(bool) if end_reward is not None else np.ones(len(ends), dtype=bool)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
@@ -121,13 +122,6 @@ def fit_outcome(
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-    state = {name: tensor.detach().clone() for name, tensor in network.state_dict().items()}
     low, high = float(paid.min()), float(paid.max())
-    return LearnedOutcome({"observation_size": observations.shape[1], "hidden": hidden}, state, (low, high), end_reward)
-
-
-def _ends(terminated: bool, steps: int) -> np.ndarray:
-    """1.0 at the step that ended an episode by termination, else 0.0, (steps,) float32."""
-    ends = np.zeros(steps, np.float32)
-    ends[-1] = float(terminated)
-    return ends
+    settings = {"observation_size": observations.shape[1], "hidden": hidden}
+    return LearnedOutcome(settings, weights(network), (low, high), end_reward)
