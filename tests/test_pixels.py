@@ -101,6 +101,7 @@ def test_the_frame_autoencoder_learns_to_redraw_frames_and_reads_motion_off_its_
     assert loss() < 0.5 * before and fit.updates == 150
     features = model.encode(observations)
     assert features.shape == (256, 8) and features.dtype == np.float32
+    np.testing.assert_allclose(fit.features, features, rtol=1e-5, atol=1e-5)  # the fit's own pass gives the same
     np.testing.assert_allclose(features.mean(0), 0, atol=1e-4)
     np.testing.assert_allclose(features.std(0, ddof=1), 1, atol=1e-3)
     with torch.no_grad():  # independently: the newest code, then its change since the older frame

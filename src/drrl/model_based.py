@@ -214,18 +214,19 @@ class ModelBased(World):
 
     def see(self, iteration: int) -> dict:
         """Fit the frame autoencoder to every real frame so far (from its previous weights after the first fit) and
-        encode the real episodes into the latent ones the world model learns from; the fit's figures for the row."""
+        encode the real episodes into the latent ones the world model learns from (the codes the fit's standardising
+        computed); the fit's figures for the row."""
         assert self.autoencoder is not None
-        first = iteration == 1
-        frames = np.concatenate([episode.observations for episode in self.frames.episodes])
+        episodes = self.frames.episodes
         fit = fit_autoencoder(
             self.autoencoder,
-            frames,
-            self.settings.frame_updates if first else self.settings.frame_refit_updates,
+            np.concatenate([episode.observations for episode in episodes]),
+            self.settings.frame_updates if iteration == 1 else self.settings.frame_refit_updates,
             seed=derive_seed(self.config.seed, iteration, SEEING),
         )
+        latent = np.split(fit.features, np.cumsum([len(episode.observations) for episode in episodes])[:-1])
         self.buffer = EpisodeBuffer(
-            [dataclasses.replace(e, observations=self.autoencoder.encode(e.observations)) for e in self.frames.episodes]
+            [dataclasses.replace(episode, observations=z) for episode, z in zip(episodes, latent, strict=True)]
         )
         return {"frame_loss": fit.loss, "frame_updates": fit.updates}
 

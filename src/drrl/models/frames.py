@@ -84,12 +84,14 @@ class FrameAutoencoder(nn.Module):
         return (255 * self.decode(raw[:, : self.latent])).round().to(torch.uint8).cpu().numpy()
 
     @torch.inference_mode()
-    def standardise(self, observations: np.ndarray) -> None:
-        """Set the features' mean and std to those over ``observations``."""
+    def standardise(self, observations: np.ndarray) -> np.ndarray:
+        """Set the features' mean and std to those over ``observations``; their standardised features (``encode``'s),
+        from this one pass of the encoder."""
         features = self._features(observations)
         self.feature_mean.copy_(features.mean(0))
         spread = features.std(0).clamp_min(1e-6) if len(features) > 1 else torch.ones_like(self.feature_std)
         self.feature_std.copy_(spread)
+        return ((features - self.feature_mean) / self.feature_std).cpu().numpy()
 
     def _features(self, observations: np.ndarray, batch: int = 1024) -> torch.Tensor:
         rows = [self._read(observations[i : i + batch]) for i in range(0, len(observations), batch)]
@@ -109,7 +111,8 @@ class FrameFit:
     """How one fit of the autoencoder went."""
 
     updates: int
-    loss: float  # the reconstruction's mean binary cross-entropy a pixel over the last 50 updates
+    loss: float  # over the last 50 updates: the reconstruction's binary cross-entropy a pixel, plus the code's penalty
+    features: np.ndarray  # the fitted observations' standardised features (N, F × latent), as ``encode`` gives them
 
 
 def fit_autoencoder(
@@ -139,8 +142,8 @@ def fit_autoencoder(
         loss.backward()
         optimizer.step()
         losses.append(float(loss.detach()))
-    model.standardise(observations)
-    return FrameFit(updates, float(np.mean(losses[-50:])) if losses else float("nan"))
+    features = model.standardise(observations)
+    return FrameFit(updates, float(np.mean(losses[-50:])) if losses else float("nan"), features)
 
 
 class Encoding(VectorObservationWrapper):
