@@ -139,7 +139,7 @@ def thesis_reward(state: np.ndarray, step, horizon: int = 200) -> tuple[np.ndarr
     reward = centred - 1.0  # 0 when centred, else −1
     terminated = ~inside
     if terminated.any():
-        reward = np.where(terminated, -2.0 * (horizon - np.asarray(step)), reward)
+        reward = np.where(terminated, failure_reward(step, horizon), reward)
     return reward, terminated
 
 
@@ -247,7 +247,7 @@ class SwingUpTask:
         reward = 0.5 * (1.0 + np.cos(state[:, 2])) - SWING_UP_CART_WEIGHT * (s / POSITION_LIMIT) ** 2
         terminated = np.abs(s) > POSITION_LIMIT
         if terminated.any():
-            reward = np.where(terminated, -1.0 * (self.horizon - np.asarray(step)), reward)
+            reward = np.where(terminated, swing_up_failure_reward(step, self.horizon), reward)
         return reward, terminated
 
 
@@ -543,14 +543,14 @@ def explain_swing_up(episode_returns, terminated) -> str:
     )
 
 
-def failure_reward(steps: np.ndarray) -> np.ndarray:
+def failure_reward(steps, horizon: int = BalanceTask.horizon) -> np.ndarray:
     """5.8's reward for leaving the bounds at 1-based step t: −2·(T − t), known from the step alone."""
-    return -2.0 * (BalanceTask.horizon - np.asarray(steps, dtype=np.float64))
+    return -2.0 * (horizon - np.asarray(steps, dtype=np.float64))
 
 
-def swing_up_failure_reward(steps: np.ndarray) -> np.ndarray:
+def swing_up_failure_reward(steps, horizon: int = SwingUpTask.horizon) -> np.ndarray:
     """The swing-up's reward for leaving the track at 1-based step t: −(T − t)."""
-    return -1.0 * (SwingUpTask.horizon - np.asarray(steps, dtype=np.float64))
+    return -1.0 * (horizon - np.asarray(steps, dtype=np.float64))
 
 
 def balance_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -38,8 +38,9 @@ class ModelBasedSettings(BaseModel):
     small network fitted to read the reward and end off the next observation, ``drrl.models.outcome``) or "auto":
     known where drrl knows it (the env's ``EnvEntry.reward``), learned elsewhere. Known is the default where
     possible because the thesis's 5.8 is discontinuous in the state (0 inside |s|, |θ| ≤ 0.05, −1 outside) and
-    depends on the step t, which the model does not observe: a learned head could only blur it, while the closed
-    form is exact and free."""
+    depends on the step t, which the model does not observe: a learned reward could only blur it, while the closed
+    form is exact and free.
+    """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
