@@ -165,14 +165,20 @@ class WorldModel(nn.Module):
             for _ in range(per_layer)
         ]
 
-    def _advance(self, x: torch.Tensor, state: list[torch.Tensor]) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """The stacked layers on network inputs x (K, B, ·) = (normalised o_t, a_t): read-outs y_t (3.7), new
+    def _layers(self) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """(W, B, b) of every layer, gathered once for a whole unfolding (a ParameterList's lookups are slow)."""
+        return list(zip(self.input_weights, self.recurrent_weights, self.biases, strict=True))
+
+    def _advance(
+        self, x: torch.Tensor, state: list[torch.Tensor], layers: list[tuple[torch.Tensor, ...]]
+    ) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """The stacked ``layers`` on network inputs x (K, B, ·) = (normalised o_t, a_t): read-outs y_t (3.7), new
         state. Each layer's cell is the recurrent policies' own (``drrl.policies.recurrent``)."""
         cell, memories = CELLS[self.kind], 1 if self.kind == "rnn" else 2
         new_state = []
-        for i, (w, b, bias) in enumerate(zip(self.input_weights, self.recurrent_weights, self.biases, strict=True)):
+        for i, (w, b, bias) in enumerate(layers):
             memory = tuple(state[memories * i : memories * (i + 1)])
-            x, memory = cell(torch.baddbmm(bias, x, w) + torch.bmm(memory[0], b), memory)
+            x, memory = cell(torch.baddbmm(torch.baddbmm(bias, x, w), memory[0], b), memory)
             new_state += memory
         return torch.baddbmm(self.readout_bias, x, self.readout_weight), new_state
 
@@ -222,7 +228,7 @@ class WorldModel(nn.Module):
         x = self._normalise(observation)
         if self.future_inputs == "zeros" and observed is not True:
             x = x * torch.as_tensor(observed, dtype=x.dtype, device=x.device).unsqueeze(-1)
-        y, new_state = self._advance(torch.cat([x, self._per_member_inputs(action, 2)], dim=-1), state)
+        y, new_state = self._advance(torch.cat([x, self._per_member_inputs(action, 2)], dim=-1), state, self._layers())
         rewards, ends = self._heads(y)
         return Prediction(self._next_observation(observation, y), rewards, ends), new_state
 
@@ -241,35 +247,32 @@ class WorldModel(nn.Module):
         model's own prediction ô_t (dynamical consistency), never the data. Returns each member's predictions of
         o_1..o_L, r_1..r_L and the ends, (K, B, L, …).
 
-        The same computation as L calls of ``step``, with the per-step work cut to what the recurrence needs
-        (the observed inputs are normalised at once, the reward and end heads read the stacked read-outs after
-        the loop): fitting spends most of its time here.
+        The same computation as L calls of ``step``, with the per-step work cut to what the recurrence needs, since
+        fitting spends most of its time here: the fed-back observation is carried in normalised units,
+        (ô_{t+1} − mean) / std(o) = (ô_t − mean) / std(o) + y_t[obs] · std(Δo) / std(o), so that no step normalises
+        again, and the layers' weights are looked up once.
         """
         observations, actions = self._per_member_inputs(observations, 3), self._per_member_inputs(actions, 3)
-        length = actions.shape[2]
+        batch, length = actions.shape[1:3]
         if not 1 <= observed_steps <= length:
             raise ValueError(
                 f"observed_steps must be in [1, {length}] for windows of {length} steps, got {observed_steps}"
             )
-        inputs = torch.cat(
-            [self._normalise(observations[:, :, :observed_steps]), actions[:, :, :observed_steps]], dim=-1
-        )
-        state = self.initial_state(actions.shape[1])
-        outputs, predicted = [], []
-        for t in range(length):
+        mean, scale = per_member(self.observation_mean, observations), per_member(self.observation_scale, observations)
+        observed = ((observations[:, :, :observed_steps] - mean) / scale).unbind(2)
+        change = per_member(self.change_scale / self.observation_scale, observed[0])
+        size, layers = self.observation_size, self._layers()
+        state, outputs, predicted = self.initial_state(batch), [], []
+        for t, action in enumerate(actions.unbind(2)):
             if t < observed_steps:
-                x, base = inputs[:, :, t], observations[:, :, t]
-            else:
-                fed = self._normalise(base)
-                x = torch.cat(
-                    [fed if self.future_inputs == "predictions" else torch.zeros_like(fed), actions[:, :, t]], dim=-1
-                )
-            y, state = self._advance(x, state)
-            base = self._next_observation(base, y)
+                fed = observed[t]
+            read = fed if t < observed_steps or self.future_inputs == "predictions" else torch.zeros_like(fed)
+            y, state = self._advance(torch.cat([read, action], dim=-1), state, layers)
+            fed = torch.addcmul(fed, y[..., :size], change)
             outputs.append(y)
-            predicted.append(base)
+            predicted.append(fed)
         rewards, ends = self._heads(torch.stack(outputs, dim=2))
-        return Prediction(observations=torch.stack(predicted, dim=2), rewards=rewards, ends=ends)
+        return Prediction(observations=torch.stack(predicted, dim=2) * scale + mean, rewards=rewards, ends=ends)
 
     def disagreement(self, prediction: Prediction) -> torch.Tensor:
         """(B,) the members' spread: the standard deviation over members of the predicted observation, in units of
