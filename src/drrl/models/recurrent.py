@@ -61,6 +61,7 @@ from drrl.policies.recurrent import elman_cell
 MODEL_KINDS = ("rnn", "lstm")
 FUTURE_INPUTS = ("predictions", "zeros")
 GATES = {"rnn": 1, "lstm": 4}  # blocks of pre-activations per layer: the state, or the LSTM's i, f, g, o
+Layer = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # a layer's input weights W, recurrent weights B, bias b
 
 
 def _lstm_cell(
@@ -165,12 +166,12 @@ class WorldModel(nn.Module):
             for _ in range(per_layer)
         ]
 
-    def _layers(self) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+    def _layers(self) -> list[Layer]:
         """(W, B, b) of every layer, gathered once for a whole unfolding (a ParameterList's lookups are slow)."""
         return list(zip(self.input_weights, self.recurrent_weights, self.biases, strict=True))
 
     def _advance(
-        self, x: torch.Tensor, state: list[torch.Tensor], layers: list[tuple[torch.Tensor, ...]]
+        self, x: torch.Tensor, state: list[torch.Tensor], layers: list[Layer]
     ) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """The stacked ``layers`` on network inputs x (K, B, ·) = (normalised o_t, a_t): read-outs y_t (3.7), new
         state. Each layer's cell is the recurrent policies' own (``drrl.policies.recurrent``)."""
