@@ -2,12 +2,14 @@
 imagines from them.
 
 ``--throughput``: frames a second of the pixel env against steps a second of the state env, batches of 1 and 100
-(median of ``--repeats`` rounds, the two envs alternating). ``--figure RUN``: real frames beside the model's imagined
+(median of ``--repeats`` rounds, the two envs alternating); then the same for Gymnasium's envs seen through their
+own cameras (``Pixels/ID``, drrl.envs.rendered; ``--envs``), one env stepped with random actions against ``ID``
+itself. ``--figure RUN``: real frames beside the model's imagined
 frames over ``--steps`` steps from the same start, with the same actions: a real episode of the run's best centre
 policy, then the run's world model (its first member) fed the encoded first frame and those actions, its own
 predictions fed back (dynamical consistency), each predicted latent drawn by the run's autoencoder.
 
-    python benchmarks/pixels.py --throughput
+    python benchmarks/pixels.py --throughput --envs Pendulum-v1,InvertedPendulum-v5
     python benchmarks/model_based.py --env cartpole-pixels --seeds 5      # episodes to balanced from frames
     drrl train cartpole-pixels --model-based --out runs/pixels
     python benchmarks/pixels.py --figure runs/pixels --out docs/images/cartpole_pixels_imagined.png
@@ -26,6 +28,7 @@ import torch
 
 import drrl.envs  # noqa: F401  (registers the envs)
 from drrl.envs.batch import make_batch_env
+from drrl.envs.registry import lookup
 from drrl.model_based import ModelBased
 from drrl.models.data import EpisodeRecorder
 from drrl.models.frames import Encoding
@@ -44,7 +47,22 @@ def steps_per_second(env_id: str, num_envs: int, steps: int = 200) -> float:
     return steps * num_envs / (time.perf_counter() - start)
 
 
-def throughput(repeats: int) -> None:
+def single_steps_per_second(env_id: str, steps: int = 300) -> float:
+    """One env of ``env_id`` (any id drrl knows, ``Pixels/ID`` too) stepped with random actions, restarted at ends."""
+    env = gymnasium.make(lookup(env_id).env_id)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    start = time.perf_counter()
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+    seconds = time.perf_counter() - start
+    env.close()
+    return steps / seconds
+
+
+def throughput(repeats: int, envs: list[str]) -> None:
     print("| batch | pixel env, frames/s | state env, steps/s | ratio |")
     print("| --- | --- | --- | --- |")
     for num_envs in (1, 100):
@@ -54,6 +72,14 @@ def throughput(repeats: int) -> None:
         ]
         pixels, states = (statistics.median(column) for column in zip(*rounds, strict=True))
         print(f"| {num_envs} | {pixels:,.0f} | {states:,.0f} | {pixels / states:.3f} |")
+    print("\n| env | Pixels/env, frames/s | env, steps/s | ratio |")
+    print("| --- | --- | --- | --- |")
+    for env_id in envs:
+        rounds = [
+            (single_steps_per_second(f"Pixels/{env_id}"), single_steps_per_second(env_id)) for _ in range(repeats)
+        ]
+        pixels, states = (statistics.median(column) for column in zip(*rounds, strict=True))
+        print(f"| {env_id} | {pixels:,.0f} | {states:,.0f} | {pixels / states:.3f} |")
 
 
 @torch.inference_mode()
@@ -102,6 +128,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--throughput", action="store_true")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--envs", default="", help="Gymnasium ids to see through their cameras, comma-separated")
     parser.add_argument("--figure", type=Path, help="a model-based run folder on frames")
     parser.add_argument("--out", type=Path, default=Path("imagined_frames.png"))
     parser.add_argument("--steps", type=int, default=50)
@@ -109,7 +136,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.throughput:
-        throughput(args.repeats)
+        throughput(args.repeats, [env for env in args.envs.split(",") if env])
     if args.figure:
         figure(args.figure, args.out, args.steps, args.seed)
 

@@ -8,7 +8,6 @@ own ffmpeg binary.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
@@ -21,8 +20,8 @@ import torch
 from gymnasium.vector import SyncVectorEnv, VectorEnv, VectorWrapper
 
 from drrl.envs.batch import ActionMap, missing_dependency
-from drrl.envs.baxter.model import import_mujoco
 from drrl.envs.registry import lookup
+from drrl.envs.rendered import rendering_env
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
@@ -153,9 +152,9 @@ def render_run(
     folder = RunFolder(Path(run_path))
     config, checkpoint = open_run(folder)
     env_id = lookup(env_name or checkpoint["env_id"]).env_id
-    env = _rendering_env(env_id, env_options)
+    env = rendering_env(env_id, env_options)
     if env_name is not None:
-        trained_on = _rendering_env(lookup(checkpoint["env_id"]).env_id, env_options)
+        trained_on = rendering_env(lookup(checkpoint["env_id"]).env_id, env_options)
         trained_on.close()
         try:
             check_same_spaces(
@@ -186,17 +185,3 @@ def render_run(
         env.close()
     write_video(recording.frames, out, recording.fps)
     return recording
-
-
-def _rendering_env(env_id: str, env_options: dict[str, Any]) -> gymnasium.Env:
-    """``env_id`` made to draw rgb_array frames headless with ``env_options``; a ValueError saying why it cannot."""
-    if ".mujoco" in str(gymnasium.spec(env_id).entry_point):
-        import_mujoco()  # a headless OpenGL unless MUJOCO_GL says otherwise, before Gymnasium imports MuJoCo
-    # pygame's envs draw on surfaces in memory: no window, and no SDL complaint about a missing display session
-    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
-    try:
-        return gymnasium.make(env_id, render_mode="rgb_array", **env_options)
-    except TypeError as error:  # an option this env does not take, e.g. shadows for the cart-pole
-        raise ValueError(f"{env_id} cannot render with {env_options}: {error}") from None
-    except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
-        raise ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}") from None

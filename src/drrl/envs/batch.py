@@ -62,7 +62,7 @@ def choose_engine(name: str, engine: str = "auto", with_options: bool = False) -
     """The engine that batches env ``name``: ``engine`` itself if it can, the first that can for ``auto`` (not
     EnvPool if the env is to be made ``with_options``: EnvPool makes its tasks as it ships them)."""
     env_id = resolve_env_id(name)
-    native = is_own(env_id)
+    native = is_own(env_id) and gymnasium.spec(env_id).vector_entry_point is not None
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; choose one of: {', '.join(ENGINES)}")
     if engine == "auto":

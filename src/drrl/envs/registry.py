@@ -63,16 +63,41 @@ class EnvEntry:
 
 
 ENTRIES: dict[str, EnvEntry] = {}  # by Gymnasium id
+FAMILIES: dict[str, Callable[[str], None]] = {}  # id prefix -> registers a member id of the family when first named
 
 
 def register(
-    entry: EnvEntry, entry_point: str, vector_entry_point: str | None = None, kwargs: dict | None = None
+    entry: EnvEntry,
+    entry_point: str,
+    vector_entry_point: str | None = None,
+    kwargs: dict | None = None,
+    max_episode_steps: int | None = None,
 ) -> None:
     """Register ``entry`` with drrl and its environment with Gymnasium."""
     gymnasium.register(
-        id=entry.env_id, entry_point=entry_point, vector_entry_point=vector_entry_point, kwargs=dict(kwargs or {})
+        id=entry.env_id,
+        entry_point=entry_point,
+        vector_entry_point=vector_entry_point,
+        kwargs=dict(kwargs or {}),
+        max_episode_steps=max_episode_steps,
     )
     ENTRIES[entry.env_id] = entry
+
+
+def register_family(prefix: str, register_member: Callable[[str], None]) -> None:
+    """A family of ids made on demand, such as ``Pixels/ID`` for any ``ID`` (``drrl.envs.rendered``):
+    ``register_member(env_id)`` registers one (``register``) or raises a ValueError saying why it cannot be."""
+    FAMILIES[prefix] = register_member
+
+
+def _member(env_id: str) -> EnvEntry | None:
+    """The entry of a family's member, registered in this process when first named; None for any other id."""
+    for prefix, register_member in FAMILIES.items():
+        if env_id.startswith(prefix):
+            if env_id not in ENTRIES:
+                register_member(env_id)
+            return ENTRIES[env_id]
+    return None
 
 
 def aliases() -> dict[str, str]:
@@ -82,12 +107,17 @@ def aliases() -> dict[str, str]:
 
 def is_own(name: str) -> bool:
     """Whether ``name`` (an alias or a Gymnasium id) is one of drrl's own environments."""
-    return aliases().get(name, name) in ENTRIES
+    return own_entry(name) is not None
 
 
 def own_entry(name: str) -> EnvEntry | None:
     """The entry of one of drrl's own environments (an alias or a Gymnasium id); None for any other name."""
-    return ENTRIES.get(aliases().get(name, name))
+    env_id = aliases().get(name, name)
+    try:
+        _member(env_id)
+    except ValueError:  # ``lookup`` says why
+        return None
+    return ENTRIES.get(env_id)
 
 
 def _can_make(name: str) -> bool:
@@ -103,8 +133,12 @@ def _can_make(name: str) -> bool:
 
 
 def lookup(name: str) -> EnvEntry:
-    """The entry for ``name``: an alias such as ``cartpole``, or any registered Gymnasium id."""
+    """The entry for ``name``: an alias such as ``cartpole``, a member of a family such as ``Pixels/Pendulum-v1``,
+    or any registered Gymnasium id."""
     env_id = aliases().get(name, name)
+    member = _member(env_id)
+    if member is not None:
+        return member
     if env_id not in gymnasium.registry:
         if not name.strip():
             raise ValueError(f"the environment name is empty; drrl's own: {_listed(aliases())}")

@@ -12,6 +12,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from drrl.envs.registry import lookup
 from drrl.envs.slots import EpisodeSlots
 
 
@@ -19,6 +20,7 @@ class SerialEpisodes(EpisodeSlots):
     """``num_envs`` copies of ``gymnasium.make(env_id, **options)``."""
 
     def __init__(self, env_id: str, num_envs: int, options: Mapping[str, Any] | None = None):
+        lookup(env_id)  # registers a family's id (drrl.envs.registry) in this process, a worker's too
         self.envs = []
         try:
             for _ in range(num_envs):
