@@ -6,10 +6,10 @@ import pytest
 from click.testing import CliRunner
 from gymnasium import spaces
 from gymnasium.utils.env_checker import check_env
+from test_pixels import PIXELS
 
 import drrl.envs  # noqa: F401  (registers the envs and the Pixels/ family)
 from drrl.cli import main
-from drrl.config import TrainConfig
 from drrl.envs.batch import choose_engine, is_frames, make_batch_env
 from drrl.envs.registry import lookup
 from drrl.envs.rendered import GreyFrames
@@ -85,31 +85,9 @@ def test_an_id_that_cannot_be_seen_is_refused_in_one_line(name, message):
 
 
 def test_a_model_based_run_learns_from_a_gymnasium_envs_frames_and_eval_and_render_read_them(tmp_path):
-    config = TrainConfig.model_validate(
-        dict(
-            env="Pixels/Pendulum-v1",
-            popsize=4,
-            budget=4,
-            max_steps=30,
-            eval_episodes=2,
-            model_based=dict(
-                hidden=(8,),
-                unfold=2,
-                overshoot=2,
-                latent_size=3,
-                fit_updates=10,
-                refit_updates=10,
-                frame_updates=4,
-                frame_refit_updates=2,
-                generations=2,
-                patience=2,
-                initial_episodes=2,
-                episodes_per_iteration=2,
-            ),
-        )
-    )
+    config = PIXELS.model_copy(update={"env": "Pixels/Pendulum-v1", "max_steps": 30})  # test_pixels's tiny run
     counters = train(config, tmp_path / "run")
-    assert counters.real_episodes == 4 and counters.real_steps == 4 * 30 and counters.imagined_episodes > 0
+    assert counters.real_episodes == 6 and counters.real_steps == 6 * 30 and counters.imagined_episodes > 0
     world = RunFolder(tmp_path / "run").load_checkpoint()["world"]
     assert world["frames"]["observations"].shape[1:] == (2, 64, 64)
     result = CliRunner().invoke(main, ["eval", str(tmp_path / "run"), "--episodes", "2"])
