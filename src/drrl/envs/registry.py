@@ -5,10 +5,11 @@ An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what
 episodes then use it instead of a learned reward) and the observation entries that follow in closed form from the
 others (imagined observations are completed by it), the reward of a step that ends the episode where the step alone
 decides it (imagined episodes with a learned end then pay it), and settings that suit the task. Each environment
-registers its entry from its own module (``register``), which also registers it with Gymnasium. An environment that
-drrl does not know is any registered Gymnasium id; its entry has the verdict "solved" where Gymnasium gives the task a
-``reward_threshold`` or the field a usual level (a mean return at or above it), and settings that reach it where
-they were measured (``drrl.envs.gymnasium_tasks``).
+registers its entry from its own module (``register``), which also registers it with Gymnasium; a family of ids made
+from others, such as ``Pixels/ID`` for any ``ID``, registers each member when it is first named (``register_family``).
+An environment that drrl does not know is any registered Gymnasium id; its entry has the verdict "solved" where
+Gymnasium gives the task a ``reward_threshold`` or the field a usual level (a mean return at or above it), and
+settings that reach it where they were measured (``drrl.envs.gymnasium_tasks``).
 """
 
 from __future__ import annotations
@@ -151,7 +152,8 @@ def lookup(name: str) -> EnvEntry:
         shown = repr(name) if len(name) <= 60 else repr(name[:57]) + "..."
         raise ValueError(
             f"unknown environment {shown}; {hint}drrl's own: {_listed(aliases())}; or any id "
-            f"registered with Gymnasium (e.g. Pendulum-v1; gymnasium.pprint_registry() lists them)"
+            f"registered with Gymnasium (e.g. Pendulum-v1; gymnasium.pprint_registry() lists them), or "
+            f"{', or '.join(prefix + 'ID' for prefix in FAMILIES)} to see one of them through its camera"
         )
     return ENTRIES.get(env_id) or gymnasium_entry(env_id)
 
