@@ -62,11 +62,12 @@ def test_pixels_pendulum_is_the_pendulum_observed_by_its_last_two_frames():
         assert reward == plain.step(action)[1]  # the task is the pendulum's own
         assert np.array_equal(frames[0], previous[1])  # the current frame becomes the previous one
     assert not np.array_equal(frames[0], frames[1])  # it swings
-    batch = make_batch_env(entry.env_id, 3)
-    assert is_frames(batch.single_observation_space)
-    observations, _ = batch.reset(seed=[3, 4, 5])
-    assert np.array_equal(observations[0], env.reset(seed=3)[0])
-    batch.close()
+    for engine in ("gymnasium", "processes"):  # a worker process registers the id itself
+        batch = make_batch_env(entry.env_id, 3, engine)
+        assert is_frames(batch.single_observation_space)
+        observations, _ = batch.reset(seed=[3, 4, 5])
+        assert np.array_equal(observations[0], env.reset(seed=3)[0])
+        batch.close()
 
 
 @pytest.mark.parametrize(
