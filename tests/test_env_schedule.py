@@ -19,6 +19,10 @@ from drrl.train import prepare, resume, subscribers
 SCHEDULED = TrainConfig(
     env="Pendulum-v1",
     engine="gymnasium",
+    search="pgpe",  # not Pendulum's own CMA-ES defaults: small and quick
+    policy="linear",
+    sigma_init=0.025,
+    episodes_per_candidate=1,
     popsize=4,
     budget=12,
     max_steps=10,

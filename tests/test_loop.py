@@ -93,6 +93,9 @@ def test_a_stopped_model_based_run_resumes_to_the_uninterrupted_metrics_and_chec
 NORMALISED = TrainConfig(
     env="Pendulum-v1",
     engine="gymnasium",
+    search="pgpe",  # not Pendulum's own CMA-ES defaults
+    sigma_init=0.025,
+    episodes_per_candidate=1,
     policy="mlp:4",
     popsize=6,
     budget=36,

@@ -225,6 +225,13 @@ def resume_run(
     run_and_report(setup, folder, attached, counters)
 
 
+def overridden_defaults(setup: Setup) -> dict:
+    """The env's own model-free defaults that a model-free run set otherwise: what to go back to after a miss."""
+    if setup.config.model_based is not None:
+        return {}
+    return {name: value for name, value in setup.entry.defaults.items() if getattr(setup.config, name) != value}
+
+
 def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Counters | None = None) -> None:
     """Run the training loop, then say what it did; a stopped run says how to resume it."""
     out, unit = folder.path, setup.world.unit
@@ -258,7 +265,7 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
         f"{counters.rows[-1]['center_return']:.1f} (best {counters.best_center_return:.1f}, {unit} "
         f"{counters.best_iteration})"
     )
-    suggested = setup.entry.suggested
+    suggested = setup.entry.suggested or overridden_defaults(setup)
     if setup.entry.criteria() and not counters.best_center_criteria:
         options = " ".join(f"--{name.replace('_', '-')} {value}" for name, value in suggested.items())
         advice = (

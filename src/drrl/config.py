@@ -11,7 +11,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from drrl.envs.batch import ENGINES
-from drrl.envs.registry import is_own, own_entry
+from drrl.envs.registry import is_own, lookup, own_entry
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings, one_of
 from drrl.policy_gradient import POLICY_GRADIENTS
 from drrl.search import SEARCHES
@@ -30,6 +30,17 @@ GYMNASIUM_DEFAULTS = {
     "fitness_shaping": "centered_ranks",
     "budget": 3200,
 }
+
+
+def gymnasium_defaults(env: str) -> dict:
+    """The settings measured for a Gymnasium env beyond ``GYMNASIUM_DEFAULTS`` (its registry entry's defaults);
+    none for a name that is no env (the env's own check says why)."""
+    try:
+        return lookup(env).defaults
+    except ValueError:
+        return {}
+
+
 # Action-space policy gradients' defaults, chosen on the thesis cart-pole among 12 settings each (step rule and size,
 # initial action σ, episodes an update; 3 seeds, 2000–3000 episodes): the ones that reached a near-optimal centre in
 # the most seeds (BENCHMARKS.md). eNAC's regression needs more episodes an update than REINFORCE's gradient.
@@ -87,7 +98,8 @@ class TrainConfig(BaseModel):
     ``model_based`` set makes a model-based run; the fields it leaves unset then start from
     ``MODEL_BASED_DEFAULTS`` and the env's own ``EnvEntry.model_based_defaults`` instead of the model-free
     defaults. A model-free run on one of drrl's envs starts from its ``EnvEntry.defaults`` (the swing-up has
-    some), on an env that is not drrl's own from ``GYMNASIUM_DEFAULTS``, an action-space policy gradient's from
+    some), on an env that is not drrl's own from ``GYMNASIUM_DEFAULTS`` and what drrl measured for that env
+    (``gymnasium_defaults``: Pendulum-v1 needs CMA-ES and a nonlinear policy), an action-space policy gradient's from
     ``POLICY_GRADIENT_DEFAULTS``. All merge in one place. sampler,
     optimizer, center_lr, sigma_lr, fitness_shaping, baseline_decay and max_sigma_change are
     PGPE's; CMA-ES (``search = "cmaes"`` or ``"sep-cmaes"``) uses popsize, sigma_init and seed only. The
@@ -181,7 +193,7 @@ class TrainConfig(BaseModel):
         if isinstance(search, str) and search in POLICY_GRADIENT_DEFAULTS:
             return {**POLICY_GRADIENT_DEFAULTS[search], **data}
         if isinstance(env, str) and not is_own(env):
-            return {**GYMNASIUM_DEFAULTS, **data}
+            return {**GYMNASIUM_DEFAULTS, **gymnasium_defaults(env), **data}
         return {**entry.defaults, **data} if entry else data
 
     @model_validator(mode="after")

@@ -1,8 +1,8 @@
 """What drrl knows of some of Gymnasium's own tasks beyond their specs: the return usually counted as solved where
-Gymnasium gives none, settings measured to reach it where drrl's defaults for Gymnasium's envs do not
-(BENCHMARKS.md, "Gymnasium's envs with drrl's defaults"), and rewards and ends in closed form of the next
-observation, which a model-based run's imagined episodes use instead of learning them (as model-based libraries
-give a task's termination function: a learned end head sees a fall only once an episode)."""
+Gymnasium gives none, the settings a model-free run starts from where drrl's defaults for Gymnasium's envs do not
+reach it and these were measured to (BENCHMARKS.md, "Gymnasium's envs with drrl's defaults"), and rewards and ends
+in closed form of the next observation, which a model-based run's imagined episodes use instead of learning them (as
+model-based libraries give a task's termination function: a learned end head sees a fall only once an episode)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 
 SOLVED_LEVELS = {"Pendulum-v1": -200.0}  # Pendulum-v1's spec has no reward_threshold
 
-SUGGESTED = {
+DEFAULTS = {
     # −145.4 over 50 fresh episodes after 51,200 episodes (33 s with EnvPool); PGPE with the same policy stayed
     # below −800: its one episode a candidate from random starts is too noisy to rank swing-up policies.
     "Pendulum-v1": {

@@ -23,7 +23,7 @@ import gymnasium
 import numpy as np
 import torch
 
-from drrl.envs.gymnasium_tasks import REWARDS, SOLVED_LEVELS, SUGGESTED
+from drrl.envs.gymnasium_tasks import DEFAULTS, REWARDS, SOLVED_LEVELS
 
 # (episode_returns (P, E), terminated (P, E)) -> {criterion: met}
 Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
@@ -187,5 +187,5 @@ def gymnasium_entry(env_id: str) -> EnvEntry:
         return f"({env_id} counts as solved at a mean return ≥ {threshold:g})"
 
     return EnvEntry(
-        env_id, verdict=verdict, explain=explain, reward=REWARDS.get(env_id), suggested=SUGGESTED.get(env_id, {})
+        env_id, verdict=verdict, explain=explain, reward=REWARDS.get(env_id), defaults=DEFAULTS.get(env_id, {})
     )
