@@ -53,7 +53,9 @@ def test_render_of_an_env_that_needs_pygame_says_what_to_install(tmp_path, monke
 
     out = tmp_path / "run"
     trained = CliRunner().invoke(
-        main, ["train", "--env", "Pendulum-v1", "--budget", "16", "--eval-episodes", "2", "--quiet", "--out", str(out)]
+        main,
+        ["train", "--env", "Pendulum-v1", "--popsize", "8", "--episodes-per-candidate", "1", "--budget", "16"]
+        + ["--eval-episodes", "2", "--quiet", "--out", str(out)],
     )
     assert trained.exit_code == 0, trained.output
     monkeypatch.setitem(sys.modules, "pygame", None)  # as if gymnasium[classic_control] were not installed
@@ -67,7 +69,8 @@ def test_render_of_a_pygame_env_is_headless_and_quiet(tmp_path):
     pytest.importorskip("pygame", reason="gymnasium[classic_control] is not installed")
     drrl = [sys.executable, "-c", "from drrl.cli import main; main()"]
     env = {k: v for k, v in os.environ.items() if k not in ("XDG_RUNTIME_DIR", "SDL_VIDEODRIVER", "DISPLAY")}
-    train = ["train", "--env", "Pendulum-v1", "--budget", "16", "--eval-episodes", "2", "--quiet", "--out", "run"]
+    train = ["train", "--env", "Pendulum-v1", "--popsize", "8", "--episodes-per-candidate", "1", "--budget", "16"]
+    train += ["--eval-episodes", "2", "--quiet", "--out", "run"]
     subprocess.run([*drrl, *train], cwd=tmp_path, env=env, check=True, capture_output=True)
     render = subprocess.run(
         [*drrl, "render", "run", "--max-steps", "4", "--out", "x.gif"],
