@@ -15,6 +15,10 @@ from PIL import Image
 from drrl.policies import linear
 from drrl.video import check_video_path, record_episode, write_video
 
+# a small Pendulum run: a generation of 8 one-episode candidates (Pendulum's own defaults spend 512 a generation)
+PENDULUM_RUN = ["train", "--env", "Pendulum-v1", "--popsize", "8", "--episodes-per-candidate", "1", "--budget", "16"]
+PENDULUM_RUN += ["--eval-episodes", "2", "--quiet"]
+
 
 def test_a_cartpole_episode_becomes_a_gif_at_half_the_control_rate(tmp_path):
     env = gym.make("drrl/CartPole-v0", render_mode="rgb_array")
@@ -54,8 +58,7 @@ def test_render_of_an_env_that_needs_pygame_says_what_to_install(tmp_path, monke
     out = tmp_path / "run"
     trained = CliRunner().invoke(
         main,
-        ["train", "--env", "Pendulum-v1", "--popsize", "8", "--episodes-per-candidate", "1", "--budget", "16"]
-        + ["--eval-episodes", "2", "--quiet", "--out", str(out)],
+        [*PENDULUM_RUN, "--out", str(out)],
     )
     assert trained.exit_code == 0, trained.output
     monkeypatch.setitem(sys.modules, "pygame", None)  # as if gymnasium[classic_control] were not installed
@@ -69,8 +72,7 @@ def test_render_of_a_pygame_env_is_headless_and_quiet(tmp_path):
     pytest.importorskip("pygame", reason="gymnasium[classic_control] is not installed")
     drrl = [sys.executable, "-c", "from drrl.cli import main; main()"]
     env = {k: v for k, v in os.environ.items() if k not in ("XDG_RUNTIME_DIR", "SDL_VIDEODRIVER", "DISPLAY")}
-    train = ["train", "--env", "Pendulum-v1", "--popsize", "8", "--episodes-per-candidate", "1", "--budget", "16"]
-    train += ["--eval-episodes", "2", "--quiet", "--out", "run"]
+    train = [*PENDULUM_RUN, "--out", "run"]
     subprocess.run([*drrl, *train], cwd=tmp_path, env=env, check=True, capture_output=True)
     render = subprocess.run(
         [*drrl, "render", "run", "--max-steps", "4", "--out", "x.gif"],
