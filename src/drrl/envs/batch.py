@@ -98,7 +98,7 @@ def make_batch_env(
         else:
             env = SerialEpisodes(env_id, num_envs, options)
     except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
-        raise ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}") from None
+        raise cannot_be_made(env_id, error) from None
     except TypeError as error:  # a keyword argument the env does not take
         if not options:
             raise
@@ -111,6 +111,11 @@ def make_batch_env(
         env.close()
         raise
     return env
+
+
+def cannot_be_made(env_id: str, error: Exception) -> ValueError:
+    """The one-line error for ``env_id`` whose module or a package it needs failed to import (``error``)."""
+    return ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}")
 
 
 def missing_dependency(env_id: str, error: Exception) -> str:

@@ -24,7 +24,7 @@ from gymnasium import spaces
 from gymnasium.envs.registration import load_env_creator
 from gymnasium.wrappers import AddRenderObservation, FrameStackObservation
 
-from drrl.envs.batch import missing_dependency
+from drrl.envs.batch import cannot_be_made
 from drrl.envs.baxter.model import import_mujoco
 from drrl.envs.pixels import FRAME_SIZE, FRAMES, PIXELS_MODEL_BASED_SETTINGS
 from drrl.envs.registry import EnvEntry, lookup, register, register_family
@@ -73,7 +73,7 @@ def rendering_env(env_id: str, options: dict[str, Any] | None = None) -> gymnasi
     except TypeError as error:  # an option this env does not take, e.g. shadows for the cart-pole
         raise ValueError(f"{env_id} cannot render with {options}: {error}") from None
     except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
-        raise ValueError(f"{env_id} cannot be made here: {missing_dependency(env_id, error)}") from None
+        raise cannot_be_made(env_id, error) from None
 
 
 def make_pixels(env_id: str, render_mode: str | None = None) -> gymnasium.Env:
@@ -91,11 +91,11 @@ def pixel_member(env_id: str) -> None:
             "frames as cartpole-pixels and cartpole-swingup-pixels"
         )
     headless(inner.env_id)
+    spec = gymnasium.spec(inner.env_id)
     try:
-        entry_point = gymnasium.spec(inner.env_id).entry_point
-        creator = load_env_creator(entry_point) if isinstance(entry_point, str) else entry_point
+        creator = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
     except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
-        raise ValueError(f"{inner.env_id} cannot be made here: {missing_dependency(inner.env_id, error)}") from None
+        raise cannot_be_made(inner.env_id, error) from None
     if "rgb_array" not in getattr(creator, "metadata", {}).get("render_modes", ()):
         raise ValueError(f"{inner.env_id} does not render rgb_array frames, so {env_id} cannot observe them")
     preset = inner.model_based_defaults
@@ -110,7 +110,7 @@ def pixel_member(env_id: str) -> None:
             "model_based": {**preset.get("model_based", {}), **PIXELS_MODEL_BASED_SETTINGS["model_based"]},
         },
     )
-    horizon = gymnasium.spec(inner.env_id).max_episode_steps  # the inner env's own limit, for imagined episodes
+    horizon = spec.max_episode_steps  # the inner env's own limit, for imagined episodes
     register(entry, f"{__name__}:make_pixels", kwargs={"env_id": inner.env_id}, max_episode_steps=horizon)
 
 
