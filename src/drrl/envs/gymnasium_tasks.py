@@ -1,8 +1,9 @@
 """What drrl knows of some of Gymnasium's own tasks beyond their specs: the return usually counted as solved where
 Gymnasium gives none, the settings a model-free run starts from where drrl's defaults for Gymnasium's envs do not
-reach it and these were measured to (BENCHMARKS.md, "Gymnasium's envs with drrl's defaults"), and rewards and ends
-in closed form of the next observation, which a model-based run's imagined episodes use instead of learning them (as
-model-based libraries give a task's termination function: a learned end head sees a fall only once an episode)."""
+reach it and these were measured to (BENCHMARKS.md, "Gymnasium's envs with drrl's defaults, beside PPO"), and
+rewards and ends in closed form of the next observation, which a model-based run's imagined episodes use instead of
+learning them (as model-based libraries give a task's termination function: a learned end head sees a fall only once
+an episode)."""
 
 from __future__ import annotations
 
