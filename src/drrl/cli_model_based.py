@@ -28,6 +28,7 @@ MODEL_OPTIONS = {
     "overshoot": "overshoot",
     "ensemble": "ensemble_size",
     "generations": "generations",
+    "policy_memory": "policy_memory",
 }
 
 
@@ -64,6 +65,13 @@ def model_based_options(command):
             "--generations",
             type=INTEGER,
             help=f"most PGPE generations in the model per iteration  [default: {_default('generations')}]",
+        ),
+        click.option(
+            "--policy-memory",
+            is_flag=True,
+            default=None,
+            help="the policy also reads the world model's memory (its hidden state), as World Models' controller "
+            "does: for frames and partially observed tasks",
         ),
     ]
     for option in reversed(options):

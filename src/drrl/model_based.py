@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 
 import gymnasium
 import numpy as np
@@ -47,6 +48,8 @@ from drrl.models.frames import Encoding, FrameAutoencoder, fit_autoencoder
 from drrl.models.imagined import ImaginedWorld
 from drrl.models.kinds import fit_model, make_model, remake
 from drrl.models.outcome import LearnedOutcome, fit_outcome
+from drrl.models.recurrent import WorldModel
+from drrl.models.remembering import Remembering
 from drrl.models.settings import ModelBasedSettings
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload, evaluate
@@ -145,7 +148,7 @@ class ModelBased(World):
             self.real,
             derive_seed(config.seed, iteration, TRAINING),
             config.max_steps,
-            self.autoencoder,
+            self.measured_on,
         )
         counters.real_episodes += real.episodes
         counters.real_steps += real.steps
@@ -231,8 +234,10 @@ class ModelBased(World):
         return {"frame_loss": fit.loss, "frame_updates": fit.updates}
 
     def measured_on(self, env: VectorEnv) -> VectorEnv:
-        """``env`` through the frame autoencoder where it observes frames (the policy reads their latent)."""
-        return env if self.autoencoder is None else Encoding(env, self.autoencoder)
+        """``env`` as the policy reads it, in measuring and collecting alike: through the frame autoencoder where it
+        observes frames (their latent), with the world model's memory beside the observation where the settings ask
+        for it."""
+        return reading(env, self.autoencoder, self.model if self.settings.policy_memory else None)
 
     def imagine_centers(self, centers: torch.Tensor, iteration: int) -> torch.Tensor:
         """The imagined returns (C,) of ``centers`` (C, n) over a real episode's horizon, each on the same
@@ -269,6 +274,7 @@ class ModelBased(World):
             self.known_reward or self.outcome,
             disagreement_penalty,
             self.complete_observation,
+            self.settings.policy_memory,
         )
 
     def refit_afresh(self, reports: list[FitReport], iteration: int) -> list[FitReport]:
@@ -401,22 +407,32 @@ def exploring_policies(search: Search, count: int, with_center: bool) -> torch.T
     return candidates[:count]
 
 
+def reading(env: VectorEnv, autoencoder: FrameAutoencoder | None, model: LearnedModel | None) -> VectorEnv:
+    """``env`` through ``autoencoder`` (frames to their latent) and with ``model``'s memory beside each
+    observation, each where given."""
+    encoded = env if autoencoder is None else Encoding(env, autoencoder)
+    if model is None:
+        return encoded
+    assert isinstance(model, WorldModel)  # the settings allow a memory of recurrent models only
+    return Remembering(encoded, model)
+
+
 def collect(
     policy: Policy,
     params: torch.Tensor,
     source: RegisteredEnv,
     seed: int,
     max_steps: int | None,
-    autoencoder: FrameAutoencoder | None = None,
+    read: Callable[[VectorEnv], VectorEnv] = lambda env: env,
 ) -> tuple[list[Episode], Evaluation]:
     """One recorded real episode per row of ``params``, and the exact steps and episodes spent; the policies read
-    the env through ``autoencoder`` if given, and the episodes hold what the env gave (frames).
+    the env through ``read`` (``ModelBased.measured_on``), and the episodes hold what the env gave (frames).
 
     The env is seeded here so that every episode starts from its own state: ``evaluate``'s seeding gives every
     candidate the same start (common random numbers), which would make all the collected episodes start alike.
     """
     recorder = EpisodeRecorder(source.make(len(params)))
-    env = recorder if autoencoder is None else Encoding(recorder, autoencoder)
+    env = read(recorder)
     try:
         env.reset(seed=seed)
         evaluation = evaluate(policy, params, env, 1, seed=None, max_steps=max_steps)

@@ -23,9 +23,8 @@ from drrl.config import TrainConfig
 from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, is_frames, make_batch_env, observation_size
 from drrl.envs.registry import is_own, lookup
 from drrl.loop import Counters, Learner, Setup, Subscriber, World, check_checkpoint, restore, run
-from drrl.model_based import ModelBased, frame_autoencoder
+from drrl.model_based import ModelBased, build_model, frame_autoencoder, reading
 from drrl.model_free import ModelFree
-from drrl.models.frames import Encoding
 from drrl.models.settings import ModelBasedSettings
 from drrl.policies import Policy, make_policy
 from drrl.policy_gradient import POLICY_GRADIENTS, make_policy_gradient
@@ -44,16 +43,18 @@ def build_policy(config: TrainConfig, env) -> Policy:
 
 def policy_inputs(config: TrainConfig, space: spaces.Space) -> int:
     """What the policy reads of an observation of ``space``: all of it, or for frames the latent state a
-    model-based run encodes them to (``drrl.models.frames``); a model-free run on frames is refused."""
+    model-based run encodes them to (``drrl.models.frames``), and the world model's memory where a model-based run
+    asks for it (``drrl.models.remembering``); a model-free run on frames is refused."""
+    memory = config.model_based.memory_size() if config.model_based else 0
     if not is_frames(space):
-        return observation_size(space)
+        return observation_size(space) + memory
     if config.model_based is None:
         raise ValueError(
             f"{config.env} observes frames {space.shape}, which a policy reads through the latent state a "
             f"model-based run learns: add --model-based (or a [model_based] table)"
         )
     frames = (space.shape or (1,))[0]
-    return frames * config.model_based.latent_size  # ``FrameAutoencoder.features``
+    return frames * config.model_based.latent_size + memory  # ``FrameAutoencoder.features``
 
 
 def build_search(config: TrainConfig, policy: Policy, discrete: bool, center: torch.Tensor | None = None) -> Learner:
@@ -278,13 +279,21 @@ def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> tor
 
 
 def as_read(config: TrainConfig, checkpoint: dict, env: VectorEnv) -> VectorEnv:
-    """``env`` as the run's policy reads it: through the run's frame autoencoder where the env observes frames."""
-    space = env.single_observation_space
-    if not is_frames(space) or config.model_based is None:
+    """``env`` as the run's policy reads it: through the run's frame autoencoder where the env observes frames, with
+    its world model's memory where the run's policy reads it (``ModelBased.read``)."""
+    settings, space, world = config.model_based, env.single_observation_space, checkpoint["world"]
+    if settings is None:
         return env
-    autoencoder = frame_autoencoder(space.shape or (), config.model_based, config.seed)
-    autoencoder.load_state_dict(checkpoint["world"]["autoencoder"])
-    return Encoding(env, autoencoder)
+    autoencoder = None
+    if is_frames(space):
+        autoencoder = frame_autoencoder(space.shape or (), settings, config.seed)
+        autoencoder.load_state_dict(world["autoencoder"])
+    model = None
+    if settings.policy_memory:
+        size = autoencoder.features if autoencoder else observation_size(space)
+        model = build_model(settings, size, env.single_action_space, config.seed)
+        model.load_state_dict(world["model"])
+    return reading(env, autoencoder, model)
 
 
 SpacePair = tuple[spaces.Space, spaces.Space]  # (observation space, action space)

@@ -32,6 +32,8 @@ from gymnasium.vector.utils import batch_space
 
 from drrl.models.base import LearnedModel, weights
 from drrl.models.data import model_actions
+from drrl.models.recurrent import WorldModel
+from drrl.models.remembering import memory_space
 
 # (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,)): a task's reward in closed form,
 # as drrl's environment registry holds it (drrl.envs.registry.EnvEntry.reward)
@@ -56,6 +58,7 @@ class ImaginedWorld:
     known_reward: RewardFunction | None = None
     disagreement_penalty: float = 0.0
     complete_observation: ObservationFunction | None = None
+    memory: bool = False
 
     @classmethod
     def of(
@@ -67,6 +70,7 @@ class ImaginedWorld:
         known_reward: RewardFunction | None = None,
         disagreement_penalty: float = 0.0,
         complete_observation: ObservationFunction | None = None,
+        memory: bool = False,
     ) -> ImaginedWorld:
         return cls(
             type(model),
@@ -78,6 +82,7 @@ class ImaginedWorld:
             known_reward,
             disagreement_penalty,
             complete_observation,
+            memory,
         )
 
     def make(self, num_envs: int) -> ImaginedEnv:
@@ -93,6 +98,7 @@ class ImaginedWorld:
             self.known_reward,
             self.disagreement_penalty,
             self.complete_observation,
+            self.memory,
         )
 
 
@@ -107,6 +113,8 @@ class ImaginedEnv(VectorEnv):
         known_reward: reward and end in closed form; None to use the model's own heads (end when p̂ > 0.5).
         disagreement_penalty: λ in r ← r − λ · disagreement (``model.disagreement``), 0 for none.
         complete_observation: recomputes the observation entries that follow from the others; None for none.
+        memory: observations are [ô_t, h_{t−1}], the prediction and the state it was predicted from (the model's
+            ``memory``, ``drrl.models.remembering``), for a policy that reads the model's memory.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
@@ -121,6 +129,7 @@ class ImaginedEnv(VectorEnv):
         known_reward: RewardFunction | None = None,
         disagreement_penalty: float = 0.0,
         complete_observation: ObservationFunction | None = None,
+        memory: bool = False,
     ):
         starts = np.array(start_observations, dtype=np.float32)  # a copy: a Ray worker's arrays are read-only
         if starts.ndim != 2 or len(starts) == 0:
@@ -131,10 +140,15 @@ class ImaginedEnv(VectorEnv):
         self.known_reward = known_reward
         self.disagreement_penalty = disagreement_penalty
         self.complete_observation = complete_observation
+        self.memory = memory
         self.device = model.device
         self._starts = torch.as_tensor(starts, device=self.device)
         bound = np.finfo(np.float32).max
         self.single_observation_space = spaces.Box(-bound, bound, (starts.shape[1],), np.float32)
+        if memory:
+            if not isinstance(model, WorldModel):
+                raise ValueError(f"only a recurrent world model has a memory for the policy to read, not {type(model)}")
+            self.single_observation_space = memory_space(starts.shape[1], model)
         self.single_action_space = action_space
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(action_space, num_envs)
@@ -171,7 +185,7 @@ class ImaginedEnv(VectorEnv):
         self._observed[:] = True
         self.elapsed_steps[:] = 0
         self._ended[:] = False
-        return self._observation.cpu().numpy(), {}
+        return self._observed_now(), {}
 
     @torch.inference_mode()
     def step(self, actions):
@@ -203,7 +217,16 @@ class ImaginedEnv(VectorEnv):
             self._restart(restarting)
             reward[restarting], terminated[restarting], truncated[restarting] = 0.0, False, False
         self._ended = terminated | truncated
-        return self._observation.cpu().numpy(), reward, terminated, truncated, {}
+        return self._observed_now(), reward, terminated, truncated, {}
+
+    def _observed_now(self) -> np.ndarray:
+        """What the policy reads: the current observations, with each env's memory of its own member if asked."""
+        assert self._observation is not None
+        if not self.memory:
+            return self._observation.cpu().numpy()
+        assert isinstance(self.model, WorldModel)
+        memory = self.model.memory(self._state)[self._member, self._position]
+        return torch.cat([self._observation, memory], dim=1).cpu().numpy()
 
     def _draw(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         """n (start index, member) pairs."""

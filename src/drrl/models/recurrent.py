@@ -166,6 +166,11 @@ class WorldModel(nn.Module):
             for _ in range(per_layer)
         ]
 
+    def memory(self, state: list[torch.Tensor]) -> torch.Tensor:
+        """(K, B, hidden[-1]) the last layer's hidden state in ``state``: what the model remembers of the steps so
+        far, the h that World Models' controller reads beside the observation (``drrl.models.remembering``)."""
+        return state[-1] if self.kind == "rnn" else state[-2]
+
     def _layers(self) -> list[Layer]:
         """(W, B, b) of every layer, gathered once for a whole unfolding (a ParameterList's lookups are slow)."""
         return list(zip(self.input_weights, self.recurrent_weights, self.biases, strict=True))

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
 from drrl.models.kinds import MODEL_KINDS
 from drrl.models.recurrent import FUTURE_INPUTS
+from drrl.models.recurrent import MODEL_KINDS as RECURRENT_KINDS
 
 REWARD_MODES = ("auto", "known", "learned")
 VALIDATE_EVERY = 100  # gradient steps between two measurements of a fit's held-out loss
@@ -83,6 +84,11 @@ class ModelBasedSettings(BaseModel):
         description="after the search in the model, go back to the search's state before it unless the new centre's "
         "imagined return beats the old centre's in the same model, on the same imagined starts",
     )
+    policy_memory: bool = Field(
+        False,
+        description="the policy also reads the world model's memory, its last layer's hidden state after the steps "
+        "so far (drrl.models.remembering); needs a recurrent model_kind and ensemble_size 1",
+    )
     model_optimizer: str = "adam_lambda"
     model_lr: float = Field(1e-2, gt=0, le=1e3)
     fit_batch_size: int = Field(128, ge=1, le=1_000_000)
@@ -135,6 +141,19 @@ class ModelBasedSettings(BaseModel):
                 f"(got {self.ensemble_size}); raise ensemble_size or set exploration_bonus to 0"
             )
         return self
+
+    @model_validator(mode="after")
+    def _memory_of_one_recurrent_model(self) -> ModelBasedSettings:
+        if self.policy_memory and (self.model_kind not in RECURRENT_KINDS or self.ensemble_size != 1):
+            raise ValueError(
+                "policy_memory reads the hidden state of one recurrent model: it needs model_kind 'rnn' or 'lstm' "
+                f"and ensemble_size 1 (got {self.model_kind!r} and {self.ensemble_size})"
+            )
+        return self
+
+    def memory_size(self) -> int:
+        """The numbers of the model's memory the policy reads beside the observation (0 without policy_memory)."""
+        return self.hidden[-1] if self.policy_memory else 0
 
     def fit_settings(self, first: bool, learn_reward: bool) -> FitSettings:
         """How to fit the model in the first iteration (``first``) or a later one."""
