@@ -280,10 +280,11 @@ def trained_center(checkpoint: dict, policy: Policy, final: bool = False) -> tor
 
 def as_read(config: TrainConfig, checkpoint: dict, env: VectorEnv) -> VectorEnv:
     """``env`` as the run's policy reads it: through the run's frame autoencoder where the env observes frames, with
-    its world model's memory where the run's policy reads it (``ModelBased.read``)."""
-    settings, space, world = config.model_based, env.single_observation_space, checkpoint["world"]
+    its world model's memory where the run's policy reads it (``ModelBased.measured_on``)."""
+    settings, space = config.model_based, env.single_observation_space
     if settings is None:
         return env
+    world = checkpoint["world"]
     autoencoder = None
     if is_frames(space):
         autoencoder = frame_autoencoder(space.shape or (), settings, config.seed)
