@@ -3,7 +3,8 @@ episodes and training wall time until solved, or what it reached within the zoo'
 
 Every ``--measure-every`` real steps the deterministic policy plays 10 episodes of a separate env (training's
 observation statistics, frozen; raw rewards); at the solved level, 50 fresh episodes confirm it and training
-stops. Measuring is not counted in the wall time. Standalone: SB3 and Gymnasium only.
+stops. Measuring is not counted in the wall time. No drrl: SB3 and Gymnasium, with the solved levels of
+``gymnasium_defaults.py``, the ones drrl's defaults are measured against.
 
     python benchmarks/ppo_zoo.py --seeds 0
     python benchmarks/ppo_zoo.py --envs Pendulum-v1 --cap-minutes 1
@@ -18,21 +19,13 @@ import time
 from pathlib import Path
 
 import torch
+from gymnasium_defaults import TARGETS  # the levels drrl's defaults are measured against
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from torch import nn
-
-TARGETS = {
-    "Pendulum-v1": -200,
-    "Acrobot-v1": -100,
-    "MountainCarContinuous-v0": 90,
-    "InvertedDoublePendulum-v5": 9000,
-    "Reacher-v5": -5,
-    "Hopper-v5": 2500,
-}
 
 # The zoo's numbers, from DLR-RM/rl-baselines3-zoo hyperparams/ppo.yml at commit
 # 22e3ff2450fd92033f7f032915e1f64894a09584; the zoo entry used is named where it differs from the env.
