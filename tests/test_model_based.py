@@ -118,8 +118,8 @@ def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypa
     from new weights with the first fit's updates, and that fit, far better, is kept and reported."""
     real_fit, calls, inflated = drrl.model_based.fit_model, [], []
 
-    def fit(model, buffer, settings, seed):
-        reports = real_fit(model, buffer, settings, seed=seed)
+    def fit(model, buffer, settings, seed, split_seed):
+        reports = real_fit(model, buffer, settings, seed, split_seed)
         calls.append(settings.max_updates)
         if len(calls) == 2:
             reports = [dataclasses.replace(report, valid_loss=report.valid_loss * 1e6) for report in reports]
@@ -127,12 +127,12 @@ def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypa
         return reports
 
     monkeypatch.setattr("drrl.model_based.fit_model", fit)
-    model = {**QUICK_MODEL, "fit_updates": 40, "refit_updates": 30, "initial_episodes": 6}
+    model = {**QUICK_MODEL, "fit_updates": 40, "refit_updates": 30, "initial_episodes": 10}
     config = TrainConfig.model_validate(
-        dict(popsize=10, episodes_per_candidate=2, budget=8, eval_episodes=5, model_based=model)
+        dict(popsize=10, episodes_per_candidate=2, budget=12, eval_episodes=5, model_based=model)
     )
     rows = train(config).rows
-    assert [row["held_out_episodes"] for row in rows] == [1, 1]  # held-out losses to compare (6 and 8 episodes)
+    assert [row["held_out_episodes"] for row in rows] == [1, 1]  # held-out losses to compare (10 and 12 episodes)
     assert [row["refitted"] for row in rows] == [0, 1]
     assert calls == [40, 30, 40]
     assert rows[1]["model_loss"] < inflated[0] / 1000

@@ -4,6 +4,8 @@ import gymnasium
 import numpy as np
 import pytest
 import torch
+from hypothesis import given
+from hypothesis import strategies as st
 
 from drrl.envs.batch import make_batch_env
 from drrl.envs.cartpole import BalanceTask, PartiallyObservedTask, SwingUpTask, failure_reward
@@ -11,7 +13,7 @@ from drrl.envs.registry import lookup
 from drrl.models import Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv, WorldModel
 from drrl.models import fit as fit_module
 from drrl.models.data import STILL
-from drrl.models.fit import clip_member_gradients, fit
+from drrl.models.fit import clip_member_gradients, fit, split_episodes, split_offsets
 from drrl.models.kinds import MODEL_KINDS, make_model
 from drrl.models.outcome import fit_outcome
 from drrl.models.quality import k_step_errors, model_quality_report
@@ -305,6 +307,47 @@ def test_gradients_are_clipped_for_each_member_apart():
     clip_member_gradients([weight], max_norm=1.0)
     torch.testing.assert_close(weight.grad[0], small)
     torch.testing.assert_close(weight.grad[1].norm(), torch.tensor(1.0), rtol=1e-5, atol=1e-5)
+
+
+def _held_out_places(lengths: list[int], settings: FitSettings, offset: float) -> set[int]:
+    """The places in the buffer of the episodes ``split_episodes`` holds out, for episodes of ``lengths``."""
+    episodes = [
+        Episode(np.zeros((n + 1, 1), np.float32), np.zeros((n, 1), np.float32), np.zeros(n, np.float32), False)
+        for n in lengths
+    ]
+    training, held_out = split_episodes(EpisodeBuffer(episodes), settings, offset)
+    assert max(len(episode) for episode in training.episodes) == max(lengths)  # training keeps a full window
+    return {next(i for i, e in enumerate(episodes) if e is held) for held in held_out.episodes}
+
+
+@given(
+    lengths=st.lists(st.integers(1, 30), min_size=1, max_size=40),
+    added=st.lists(st.integers(1, 30), max_size=20),
+    holdout=st.sampled_from([0.0, 0.1, 0.2, 0.25, 0.5]),
+    offset=st.floats(0, 1, exclude_max=True),
+)
+def test_an_episode_keeps_its_part_as_episodes_are_added(lengths, added, holdout, offset):
+    """A fit started from the previous model's weights never trains on what the fit before it held out: as the
+    buffer grows an episode keeps its part, but for the longest (trained on while it is the only one that long) and
+    the first episodes (nothing is held out while ⌊h · E⌋ = 0); one place in 1 / h is held out, never a short one."""
+    settings = FitSettings(unfold=3, overshoot=0, holdout=holdout)
+    before, after = _held_out_places(lengths, settings, offset), _held_out_places(lengths + added, settings, offset)
+    longest_before, longest_after = max(lengths), max(lengths + added)
+    assert {i for i in before if lengths[i] < longest_after} <= after
+    if int(holdout * len(lengths)):
+        assert {i for i in after if i < len(lengths) and lengths[i] < longest_before} <= before
+    place = np.arange(len(lengths)) * holdout + offset
+    systematic = set(np.flatnonzero(np.floor(place + holdout) > np.floor(place)).tolist())
+    eligible = {i for i in systematic if lengths[i] >= settings.unfold} if int(holdout * len(lengths)) else set()
+    assert before <= eligible and len(eligible - before) <= 1
+
+
+def test_five_members_hold_out_five_different_fifths():
+    lengths = [20] * 25
+    offsets = split_offsets(7, 0, 5)
+    parts = [_held_out_places(lengths, FitSettings(unfold=2, overshoot=2), offset) for offset in offsets]
+    assert [len(part) for part in parts] == [5] * 5
+    assert set().union(*parts) == set(range(25))
 
 
 def test_ensemble_members_are_fitted_on_different_held_out_episodes():

@@ -3,8 +3,8 @@
 One step of the loop (``drrl.loop.run``) is one iteration:
     1. collect real episodes with the current centre policy μ and exploring candidates μ ± ε from the search;
     2. fit the world model(s) to all real episodes so far (``drrl.models.fit``; later fits start from the previous
-       weights, and a later fit whose held-out loss jumps to ``LOSS_JUMP`` times the last one is done again from
-       new weights, the better of the two kept);
+       weights, every fit holds out the episodes the fits before it held out, and a later fit whose held-out loss
+       jumps to ``LOSS_JUMP`` times the last one is done again from new weights, the better of the two kept);
     3. run the search inside the model (an ``ImaginedEnv``, made by every backend worker
        from an ``ImaginedWorld``), from real start states, for at most
        ``model_based.generations`` generations of ``drrl.loop.run_generation``, the model-free generation,
@@ -115,6 +115,7 @@ class ModelBased(World):
         self.end_reward = None if self.known_reward else entry.end_reward
         self.outcome: LearnedOutcome | None = None  # the reward and end learned where none is known
         self.buffer = EpisodeBuffer()
+        self.split_seed = derive_seed(config.seed, 0, FITTING)  # one for every fit: episodes held out stay so
         self.sizes = iteration_sizes(config.budget, settings)
 
     @property
@@ -161,7 +162,8 @@ class ModelBased(World):
             self.frames.extend(episodes)
             seeing = self.see(iteration)
         fit_now = fitting_settings(self.settings.fit_settings(iteration == 1, False), self.buffer)
-        reports = fit_model(self.model, self.buffer, fit_now, seed=derive_seed(config.seed, iteration, FITTING))
+        seed = derive_seed(config.seed, iteration, FITTING)
+        reports = fit_model(self.model, self.buffer, fit_now, seed, self.split_seed)
         if any(report.stop == "diverged" for report in reports):
             raise ModelDiverged(f"iteration {iteration}: the world model's loss turned non-finite")
         previous = counters.rows[-1] if counters.rows else {}
@@ -287,7 +289,7 @@ class ModelBased(World):
         seed = derive_seed(self.config.seed, iteration, FITTING)
         fresh = remake(self.model, seed)
         settings = fitting_settings(self.settings.fit_settings(True, False), self.buffer)
-        fresh_reports = fit_model(fresh, self.buffer, settings, seed=seed)
+        fresh_reports = fit_model(fresh, self.buffer, settings, seed, self.split_seed)
         worse = held_out_loss(fresh_reports) >= held_out_loss(reports)
         if worse or any(report.stop == "diverged" for report in fresh_reports):
             return reports

@@ -4,11 +4,16 @@ Minibatches of windows go through ``WorldModel.unfold``; the squared error summe
 (``unfolding_loss``) is minimised by one of the thesis's optimizers (3.5.3: Nesterov's accelerated gradient 3.24,
 Adam with λ of Algorithm 4) or torch's own, with the step size decaying along a cosine to 0 over ``max_updates``
 (beyond the thesis: the loss is dominated by a few hard windows, e.g. of a falling pole, and a constant step keeps
-the fit jumping around). A random part of the episodes is held out; training stops once their loss has not improved
-for ``patience`` validations, and the model keeps the weights of its best validation. With too few episodes to hold
+the fit jumping around). Every fifth episode (at the default ``holdout`` of 0.2) is held out, chosen by its place in
+the buffer, so that an episode held out in one fit stays held out in the next as episodes are added: a model fitted
+again from its previous weights has then never trained on its held-out episodes, and the held-out losses of
+successive fits are comparable. Training stops once their loss has not improved for ``patience`` validations, and
+the model keeps the weights of its best validation. With too few episodes to hold
 any out, the training loss stands in for the held-out loss in choosing the weights kept, but never stops the fit
 early: it would stop on the noise of the minibatches, not on overfitting. The K members of an ensemble
-are fitted side by side in one batched network, each on its own split of the episodes.
+are fitted side by side in one batched network, each on its own split of the episodes: member k's held-out places
+are shifted by k/K of the period, so that five members at 0.2 hold out five different fifths (the folds of a
+cross-validation).
 
 Divergence: a loss that turns NaN or infinite stops the fit at once; the model gets back the weights of its last
 good validation and the report says ``stop="diverged"`` (and a warning is issued), so a caller never goes on with a
@@ -95,17 +100,23 @@ def make_model_optimizer(name: str, params, lr: float, momentum: float = 0.9) ->
 
 
 def fit(
-    model: WorldModel, buffer: EpisodeBuffer, settings: FitSettings = FitSettings(), seed: int = 0
+    model: WorldModel,
+    buffer: EpisodeBuffer,
+    settings: FitSettings = FitSettings(),
+    seed: int = 0,
+    split_seed: int | None = None,
 ) -> list[FitReport]:
     """Train ``model``'s K members on ``buffer`` in place, side by side, each with its own held-out episodes,
     normalisation and minibatches; returns a report per member. Raises if the data cannot be unfolded.
+
+    ``seed`` draws the minibatches; ``split_seed`` (``seed`` if None) places the held-out episodes
+    (``split_episodes``): a run passes the same one to every fit, so that its splits only grow.
 
     A member whose validation loss has not improved for ``patience`` validations keeps its best weights; the fit
     stops when every member has, or after ``max_updates``.
     """
     buffer.check_unfolding(settings.unfold, settings.overshoot)
-    rng = np.random.default_rng(seed)
-    splits = [split_episodes(buffer, settings, rng) for _ in range(len(model))]
+    splits = [split_episodes(buffer, settings, offset) for offset in split_offsets(split_seed, seed, len(model))]
     scales = [training.scales() for training, _ in splits]
     model.set_scales({name: torch.stack([member[name] for member in scales]) for name in scales[0]})
     windows = buffer.windows(settings.unfold, settings.overshoot).to(model.device)
@@ -217,23 +228,32 @@ def _member_windows(
     return index, weight
 
 
-def split_episodes(
-    buffer: EpisodeBuffer, settings: FitSettings, rng: np.random.Generator
-) -> tuple[EpisodeBuffer, EpisodeBuffer]:
-    """Hold out ⌊holdout · E⌋ of the E episodes, among those that can be unfolded and never the longest (training
-    keeps a full window).
+def split_offsets(split_seed: int | None, seed: int, members: int) -> list[float]:
+    """The place of each of ``members`` members' held-out episodes within the period 1 / holdout, as a fraction of
+    it in [0, 1): one drawn from ``split_seed`` (``seed`` if None), shifted by k / K for member k."""
+    start = np.random.default_rng(seed if split_seed is None else split_seed).random()
+    return [(start + k / members) % 1.0 for k in range(members)]
 
-    With too few episodes for that (fewer than 5 at the default 0.2) nothing is held out: the first real episodes
-    are too precious to set aside, and the training loss stands in for the validation loss.
+
+def split_episodes(buffer: EpisodeBuffer, settings: FitSettings, offset: float) -> tuple[EpisodeBuffer, EpisodeBuffer]:
+    """Hold out one episode in every 1 / ``settings.holdout`` by its place i in the buffer, from ``offset``: episode
+    i where ⌊(i + 1 + offset / h)·h⌋ > ⌊(i + offset / h)·h⌋, h the holdout fraction (systematic sampling; 0.2
+    holds out every fifth). Episode i's place never changes as episodes are added, so neither does its part.
+
+    Episodes too short to unfold stay in training, and so does the longest unless one as long is trained on (training
+    keeps a full window). With too
+    few episodes (⌊h · E⌋ = 0, fewer than 5 at the default) nothing is held out: the first real episodes are too
+    precious to set aside, and the training loss stands in for the validation loss.
     """
-    eligible = [e for e in buffer.episodes if len(e) >= settings.unfold]
-    longest = max(buffer.episodes, key=len)
-    candidates = [e for e in eligible if e is not longest]
-    count = min(len(candidates), int(settings.holdout * len(buffer)))
-    if count == 0:
+    h = settings.holdout
+    if int(h * len(buffer)) == 0:
         return buffer, EpisodeBuffer()
-    chosen = {id(candidates[i]) for i in rng.permutation(len(candidates))[:count]}
+    place = np.arange(len(buffer)) + offset / h
+    lengths = np.array([len(episode) for episode in buffer.episodes])
+    held = (np.floor((place + 1) * h) > np.floor(place * h)) & (lengths >= settings.unfold)
+    if not (lengths[~held] == lengths.max()).any():  # the longest held out, and none as long left to train on
+        held[np.argmax(np.where(held, lengths, -1))] = False
     return (
-        EpisodeBuffer([e for e in buffer.episodes if id(e) not in chosen]),
-        EpisodeBuffer([e for e in buffer.episodes if id(e) in chosen]),
+        EpisodeBuffer([e for e, out in zip(buffer.episodes, held, strict=True) if not out]),
+        EpisodeBuffer([e for e, out in zip(buffer.episodes, held, strict=True) if out]),
     )

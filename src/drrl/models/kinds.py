@@ -52,9 +52,12 @@ def remake(model: LearnedModel, seed: int) -> LearnedModel:
     return fresh.to(model.device)
 
 
-def fit_model(model: LearnedModel, buffer: EpisodeBuffer, settings: FitSettings, seed: int = 0) -> list[FitReport]:
-    """Fit ``model`` in place to ``buffer`` as its kind is fitted; a report per member."""
+def fit_model(
+    model: LearnedModel, buffer: EpisodeBuffer, settings: FitSettings, seed: int = 0, split_seed: int | None = None
+) -> list[FitReport]:
+    """Fit ``model`` in place to ``buffer`` as its kind is fitted, the held-out episodes placed by ``split_seed``
+    (``drrl.models.fit.split_episodes``); a report per member."""
     if isinstance(model, LinearModel):
-        return fit_linear(model, buffer, settings, seed)
+        return fit_linear(model, buffer, settings, seed, split_seed)
     assert isinstance(model, WorldModel)
-    return fit(model, buffer, settings, seed)
+    return fit(model, buffer, settings, seed, split_seed)

@@ -41,7 +41,7 @@ from torch import nn
 
 from drrl.models.base import Prediction, per_member, spread
 from drrl.models.data import EpisodeBuffer
-from drrl.models.fit import FitReport, FitSettings, split_episodes
+from drrl.models.fit import FitReport, FitSettings, split_episodes, split_offsets
 from drrl.models.recurrent import window_losses
 
 RIDGE = 1e-3  # λ of the ridge, per training step: keeps constant and collinear features (fixed targets) harmless
@@ -170,16 +170,19 @@ class LinearModel(nn.Module):
 
 
 def fit_linear(
-    model: LinearModel, buffer: EpisodeBuffer, settings: FitSettings = FitSettings(), seed: int = 0
+    model: LinearModel,
+    buffer: EpisodeBuffer,
+    settings: FitSettings = FitSettings(),
+    seed: int = 0,
+    split_seed: int | None = None,
 ) -> list[FitReport]:
     """Fit each member of ``model`` in place by ridge regression on its own training episodes (held out as
     ``drrl.models.fit`` holds them out); a report per member, its losses measured as the recurrent models' are
     (``window_losses`` over windows of ``settings.unfold`` + ``settings.overshoot`` steps)."""
     buffer.check_unfolding(settings.unfold, settings.overshoot)
-    rng = np.random.default_rng(seed)
     reports = []
-    for k in range(len(model)):
-        training, held_out = split_episodes(buffer, settings, rng)
+    for k, offset in enumerate(split_offsets(split_seed, seed, len(model))):
+        training, held_out = split_episodes(buffer, settings, offset)
         _fit_member(model, k, training, settings.learn_reward)
         reports.append((training, held_out))
     return [
