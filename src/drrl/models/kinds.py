@@ -55,9 +55,10 @@ def remake(model: LearnedModel, seed: int) -> LearnedModel:
 def fit_model(
     model: LearnedModel, buffer: EpisodeBuffer, settings: FitSettings, seed: int = 0, split_seed: int | None = None
 ) -> list[FitReport]:
-    """Fit ``model`` in place to ``buffer`` as its kind is fitted, the held-out episodes placed by ``split_seed``
-    (``drrl.models.fit.split_episodes``); a report per member."""
+    """Fit ``model`` in place to ``buffer`` as its kind is fitted; a report per member. A recurrent model's held-out
+    episodes are placed by ``split_seed`` (``drrl.models.fit.split_episodes``), the linear model's drawn from ``seed``
+    at every fit (``drrl.models.linear.split_at_random``)."""
     if isinstance(model, LinearModel):
-        return fit_linear(model, buffer, settings, seed, split_seed)
+        return fit_linear(model, buffer, settings, seed)
     assert isinstance(model, WorldModel)
     return fit(model, buffer, settings, seed, split_seed)
