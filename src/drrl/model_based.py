@@ -3,7 +3,7 @@
 One step of the loop (``drrl.loop.run``) is one iteration:
     1. collect real episodes with the current centre policy μ and exploring candidates μ ± ε from the search;
     2. fit the world model(s) to all real episodes so far (``drrl.models.fit``; later fits start from the previous
-       weights, every fit holds out the episodes the fits before it held out, and a later fit whose held-out loss
+       weights, a recurrent model's fits all hold out the same episodes, and a later fit whose held-out loss
        jumps to ``LOSS_JUMP`` times the last one is done again from new weights, the better of the two kept);
     3. run the search inside the model (an ``ImaginedEnv``, made by every backend worker
        from an ``ImaginedWorld``), from real start states, for at most

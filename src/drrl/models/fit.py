@@ -8,12 +8,11 @@ the fit jumping around). Every fifth episode (at the default ``holdout`` of 0.2)
 the buffer, so that an episode held out in one fit stays held out in the next as episodes are added: a model fitted
 again from its previous weights has then never trained on its held-out episodes, and the held-out losses of
 successive fits are comparable. Training stops once their loss has not improved for ``patience`` validations, and
-the model keeps the weights of its best validation. With too few episodes to hold
-any out, the training loss stands in for the held-out loss in choosing the weights kept, but never stops the fit
-early: it would stop on the noise of the minibatches, not on overfitting. The K members of an ensemble
-are fitted side by side in one batched network, each on its own split of the episodes: member k's held-out places
-are shifted by k/K of the period, so that five members at 0.2 hold out five different fifths (the folds of a
-cross-validation).
+the model keeps the weights of its best validation. With too few episodes to hold any out, the training loss
+stands in for the held-out loss in choosing the weights kept, but never stops the fit early: it would stop on the
+noise of the minibatches, not on overfitting. The K members of an ensemble are fitted side by side in one batched
+network, each on its own split of the episodes: member k's held-out places are shifted by k/K of the period, so that
+five members at 0.2 hold out five different fifths (the folds of a cross-validation).
 
 Divergence: a loss that turns NaN or infinite stops the fit at once; the model gets back the weights of its last
 good validation and the report says ``stop="diverged"`` (and a warning is issued), so a caller never goes on with a
@@ -241,9 +240,8 @@ def split_episodes(buffer: EpisodeBuffer, settings: FitSettings, offset: float) 
     holds out every fifth). Episode i's place never changes as episodes are added, so neither does its part.
 
     Episodes too short to unfold stay in training, and so does the longest unless one as long is trained on (training
-    keeps a full window). With too
-    few episodes (⌊h · E⌋ = 0, fewer than 5 at the default) nothing is held out: the first real episodes are too
-    precious to set aside, and the training loss stands in for the validation loss.
+    keeps a full window). With too few episodes (⌊h · E⌋ = 0, fewer than 5 at the default) nothing is held out: the
+    first real episodes are too precious to set aside, and the training loss stands in for the validation loss.
     """
     h = settings.holdout
     if int(h * len(buffer)) == 0:
