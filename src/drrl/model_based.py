@@ -175,7 +175,6 @@ class ModelBased(World):
         if refitted:
             reports = self.refit_afresh(reports, iteration)
         if self.known_reward is None:
-            seed = derive_seed(config.seed, iteration, FITTING)
             self.outcome = fit_outcome(self.buffer, self.end_reward, seed=seed)
         # 3. the search inside it, from real start states
         search_start = time.perf_counter()
