@@ -461,6 +461,27 @@ def test_each_imagined_episode_is_stepped_by_its_own_member_alone(kind):
     torch.testing.assert_close(own._slots, layout)
 
 
+@pytest.mark.parametrize("kind", MODEL_KINDS)
+def test_a_member_no_episode_drew_is_not_stepped_and_the_others_predict_bit_for_bit_as_before(kind):
+    """Candidates compared on common starts share each episode's member: a generation of one episode a candidate
+    draws one member for all, and only that member is stepped, predicting exactly what it does in the ensemble."""
+    ensemble = make_model(kind, 4, 1, hidden=(8,), members=3, seed=0)
+    if kind == "linear":  # built with zero weights, which least squares would set
+        with torch.no_grad():
+            ensemble.weight.normal_(0.0, 0.1, generator=torch.Generator().manual_seed(0))
+    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    shared = ImaginedEnv(ensemble, cartpole_starts(), 6, action_space, horizon=3)
+    every = ImaginedEnv(ensemble, cartpole_starts(), 6, action_space, horizon=3, disagreement_penalty=1e-30)
+    for env in (shared, every):
+        env.reset(seed=[11] * 6)
+    assert len(shared._stepping) == 1 and len(every._stepping) == 3
+    actions = np.random.default_rng(0).uniform(-1, 1, (8, 6, 1)).astype(np.float32)
+    for action in actions:  # across restarts (horizon 3), which keep each env's member
+        mine, theirs = shared.step(action), every.step(action)
+        np.testing.assert_array_equal(mine[0], theirs[0])
+        np.testing.assert_array_equal(mine[3], theirs[3])
+
+
 # ------------------------------------------------------------------------------------------------ quality report
 def test_the_quality_report_plots_k_step_errors_of_each_variant(tmp_path):
     training, held_out = (

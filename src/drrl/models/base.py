@@ -24,7 +24,8 @@ class Prediction:
 
 
 class LearnedModel(Protocol):
-    """A learned model of an environment, stepped in batches (an ``nn.Module``)."""
+    """A learned model of an environment, stepped in batches (an ``nn.Module``). Every weight and buffer holds the
+    members first (K, …), so that ``members_of`` can take some of them apart."""
 
     change_scale: torch.Tensor  # (K, o): each member's standard deviation of the per-step change, its error unit
 
@@ -71,6 +72,15 @@ class LearnedModel(Protocol):
 def weights(model: LearnedModel | torch.nn.Module) -> dict[str, torch.Tensor]:
     """A model's state (weights and buffers) as copies on the CPU, to keep or to send to another process."""
     return {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
+
+
+def members_of(model: LearnedModel, members: torch.Tensor) -> LearnedModel:
+    """The ensemble of ``model``'s members ``members`` (indices) alone, each with its own weights: it predicts for
+    them exactly what ``model`` does."""
+    with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace
+        subset = type(model)(**{**model.settings(), "members": len(members)})  # type: ignore[call-arg]
+    subset.load_state_dict({name: tensor[members] for name, tensor in model.state_dict().items()})
+    return subset.to(model.device)  # type: ignore[attr-defined]
 
 
 def per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:

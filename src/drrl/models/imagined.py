@@ -13,9 +13,10 @@ apart.
 Episode seeds (``reset(seed=[...])``, one per sub-environment) fix each episode's start and member, so candidates of
 one PGPE generation are compared on the same imagined starts, as they are on real ones.
 
-Each episode is stepped by its own member only: the episodes are grouped by member into a (K, G) batch, G the
-largest group, so an ensemble of K costs about what one model does. With a disagreement penalty every member steps
-every episode, since the penalty needs all their predictions.
+Each episode is stepped by its own member only: the episodes are grouped by member into an (A, G) batch of the A
+members drawn, G the largest group, so an ensemble of K costs about what one model does (a generation's episodes
+that share their seeds share one member, and only that one is stepped). With a disagreement penalty every member
+steps every episode, since the penalty needs all their predictions.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from drrl.models.base import LearnedModel, weights
+from drrl.models.base import LearnedModel, members_of, weights
 from drrl.models.data import model_actions
 from drrl.models.recurrent import WorldModel
 from drrl.models.remembering import memory_space
@@ -156,9 +157,11 @@ class ImaginedEnv(VectorEnv):
         self._observation: torch.Tensor | None = None
         self._every_member = bool(disagreement_penalty) or len(model) == 1  # every member steps every env
         self._member = torch.zeros(num_envs, dtype=torch.long, device=self.device)
-        # the (K, G) envs each member steps (N pads a group), env n's place in its member's group, and the state
-        # (K, G, ·) in that layout
+        # the members that step (the model, or those drawn), the (A, G) envs each of them steps (N pads a group),
+        # env n's row (its member's) and place in that layout, and the state (A, G, ·) in it
+        self._stepping = model
         self._slots = torch.zeros(len(model), 1, dtype=torch.long, device=self.device)
+        self._row = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self._position = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self._state: list[torch.Tensor] = []
         self._observed = torch.ones(num_envs, dtype=torch.bool, device=self.device)  # o_t is a real start
@@ -181,7 +184,7 @@ class ImaginedEnv(VectorEnv):
         self._observation = self._starts[torch.as_tensor(starts, device=self.device)]
         self._member = torch.as_tensor(members, device=self.device)
         self._group()
-        self._state = self.model.initial_state(self._slots.shape[1])
+        self._state = self._stepping.initial_state(self._slots.shape[1])
         self._observed[:] = True
         self.elapsed_steps[:] = 0
         self._ended[:] = False
@@ -194,10 +197,10 @@ class ImaginedEnv(VectorEnv):
         if self._observation is None:
             raise RuntimeError("call reset() before step()")
         action = torch.as_tensor(model_actions(actions, self.single_action_space), device=self.device)
-        prediction, self._state = self.model.step(
+        prediction, self._state = self._stepping.step(
             self._grouped(self._observation), self._grouped(action), self._state, self._grouped(self._observed)
         )
-        own = (self._member, self._position)  # each env's prediction by its own member
+        own = (self._row, self._position)  # each env's prediction by its own member
         previous, self._observation = self._observation, prediction.observations[own]
         if self.complete_observation is not None:
             completed = self.complete_observation(previous.cpu().numpy(), self._observation.cpu().numpy())
@@ -224,8 +227,8 @@ class ImaginedEnv(VectorEnv):
         assert self._observation is not None
         if not self.memory:
             return self._observation.cpu().numpy()
-        assert isinstance(self.model, WorldModel)
-        memory = self.model.memory(self._state)[self._member, self._position]
+        assert isinstance(self._stepping, WorldModel)
+        memory = self._stepping.memory(self._state)[self._row, self._position]
         return torch.cat([self._observation, memory], dim=1).cpu().numpy()
 
     def _draw(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -244,28 +247,31 @@ class ImaginedEnv(VectorEnv):
         )
         self._observed[index] = True
         self.elapsed_steps[envs] = 0
-        rows = (slice(None), index) if self._every_member else (self._member[index], self._position[index])
+        rows = (slice(None), index) if self._every_member else (self._row[index], self._position[index])
         for tensor in self._state:
             tensor[rows] = 0.0
 
     def _grouped(self, rows: torch.Tensor) -> torch.Tensor:
-        """Per-env ``rows`` (N, …) in the members' layout (K, G, …); as they are if every member steps every env."""
+        """Per-env ``rows`` (N, …) in the members' layout (A, G, …); as they are if every member steps every env."""
         return rows if self._every_member else _padded(rows)[self._slots]
 
     def _group(self) -> None:
         """Which envs each member steps: all of them for the disagreement penalty, else its own episodes, padded
-        with the scratch row N to the largest group."""
+        with the scratch row N to the largest group; a member drawn for no env is not stepped at all."""
         members, n = len(self.model), self.num_envs
         if self._every_member:
+            self._stepping, self._row = self.model, self._member
             self._slots = torch.arange(n, device=self.device).expand(members, n)
             self._position = torch.arange(n, device=self.device)
             return
-        order = torch.argsort(self._member, stable=True)
-        counts = torch.bincount(self._member, minlength=members)
-        first = torch.cumsum(counts, 0) - counts  # where each member's envs begin in ``order``
-        position = torch.arange(n, device=self.device) - first[self._member[order]]
-        self._slots = torch.full((members, int(counts.max())), n, dtype=torch.long, device=self.device)
-        self._slots[self._member[order], position] = order
+        drawn, self._row = torch.unique(self._member, sorted=True, return_inverse=True)
+        self._stepping = self.model if len(drawn) == members else members_of(self.model, drawn)
+        order = torch.argsort(self._row, stable=True)
+        counts = torch.bincount(self._row)
+        first = torch.cumsum(counts, 0) - counts  # where each row's envs begin in ``order``
+        position = torch.arange(n, device=self.device) - first[self._row[order]]
+        self._slots = torch.full((len(drawn), int(counts.max())), n, dtype=torch.long, device=self.device)
+        self._slots[self._row[order], position] = order
         self._position = torch.empty_like(position)
         self._position[order] = position
 
