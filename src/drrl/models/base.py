@@ -78,7 +78,7 @@ def members_of(model: LearnedModel, members: torch.Tensor) -> LearnedModel:
     """The ensemble of ``model``'s members ``members`` (indices) alone, each with its own weights: it predicts for
     them exactly what ``model`` does."""
     with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace
-        subset = type(model)(**{**model.settings(), "members": len(members)})  # type: ignore[call-arg]
+        subset = type(model)(**{**model.settings(), "members": len(members)})
     subset.load_state_dict({name: tensor[members] for name, tensor in model.state_dict().items()})
     return subset.to(model.device)  # type: ignore[attr-defined]
 
