@@ -4,12 +4,14 @@ the searches behind one interface; the layers import downward only."""
 import ast
 import csv
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
 
 from drrl.config import TrainConfig
 from drrl.loop import Subscriber, run
+from drrl.models.settings import ModelBasedSettings
 from drrl.rollout.moments import Moments
 from drrl.runs import RunFolder
 from drrl.train import prepare, resume, subscribers, train
@@ -248,6 +250,10 @@ def test_the_model_guard_warns_when_the_model_promises_far_more_than_reality_giv
     guard.row(None, counters, {"imagined_center_return": -40.0, "center_return": -45.0})  # one that is right
     guard.row(None, counters, {"center_return": -45.0})  # a model-free row
     assert guard.warned == 1 and "promised the centre 654.0, reality gave 4.6" in said[0]
+    assert "--ensemble 5" in said[0] and "disagreement penalty" in said[0]
+    five = SimpleNamespace(config=SimpleNamespace(model_based=ModelBasedSettings(ensemble_size=5)))
+    guard.row(five, counters, {"imagined_center_return": 654.0, "center_return": 4.6})
+    assert "--ensemble" not in said[1] and "disagreement penalty" in said[1]  # only what the run does not do
 
 
 def test_measuring_takes_about_a_quarter_of_the_env_steps_by_default():

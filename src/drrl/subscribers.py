@@ -18,6 +18,7 @@ from typing import Any
 from tqdm import tqdm
 
 from drrl.loop import Counters, Setup, Subscriber
+from drrl.models.settings import ModelBasedSettings
 from drrl.runs import RunFolder
 
 INSTALL_TENSORBOARD = '--tensorboard needs TensorBoard, which is not installed: pip install "drrl[tensorboard]"'
@@ -131,6 +132,17 @@ class ModelGuard(Subscriber):
         self.warned += 1
         self.say(
             f"warning: iteration {counters.iteration}: the world model promised the centre {promised:.1f}, "
-            f"reality gave {real:.1f}; the search is exploiting the model's errors. Try an ensemble "
-            f"(--ensemble 5) with a disagreement penalty, a larger model, or more real episodes per iteration"
+            f"reality gave {real:.1f}; the search is exploiting the model's errors. Try "
+            + ", ".join(remedies(None if setup is None else setup.config.model_based))
         )
+
+
+def remedies(settings: ModelBasedSettings | None) -> list[str]:
+    """What helps a model that the search exploits, of what the run does not do already."""
+    ensemble, penalty = (1, 0.0) if settings is None else (settings.ensemble_size, settings.disagreement_penalty)
+    return [
+        *(["an ensemble (--ensemble 5)"] if ensemble == 1 else []),
+        *([] if penalty else ["a disagreement penalty (disagreement_penalty in [model_based])"]),
+        "a larger model (--model-hidden)",
+        "or more real episodes per iteration (episodes_per_iteration in [model_based])",
+    ]
