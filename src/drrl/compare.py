@@ -163,12 +163,13 @@ def plot(curves: list[Curve], path: Path, env: str, eval_episodes: int) -> None:
 
 def comparison_figure(curves: list[Curve], env: str, eval_episodes: int):
     """Each method's mean centre return and its ±1 s.e. band against real episodes (log axis, ticks at 1, 2, 5,
-    10, 20, ... episodes). A matplotlib figure."""
+    10, 20, ... episodes, thousands written 1k, 2k, ... so that they do not run into each other). A matplotlib
+    figure."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     figure, axes = plt.subplots(figsize=(7.0, 4.8), layout="constrained")
     for curve in curves:
@@ -181,7 +182,7 @@ def comparison_figure(curves: list[Curve], env: str, eval_episodes: int):
         axes.fill_between(curve.real_episodes, curve.low, curve.high, step="post", alpha=0.2, color=line.get_color())
     axes.set_xscale("log")
     axes.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-    axes.xaxis.set_major_formatter(ScalarFormatter())
+    axes.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x >= 1000 else f"{x:g}"))
     axes.xaxis.set_minor_formatter(NullFormatter())
     axes.set_xlabel("real training episodes")
     axes.set_ylabel(f"centre policy's average return ({eval_episodes} episodes)")
