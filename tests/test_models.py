@@ -435,18 +435,26 @@ def test_a_learned_outcome_tells_the_cartpoles_failures_and_pays_them_as_the_tas
     assert ends.mean() > 0.95 and (rewards[ends] == -2.0 * (200 - 30)).all()  # 5.8's failure, from the step
 
 
-@pytest.mark.parametrize("kind", MODEL_KINDS)
-def test_each_imagined_episode_is_stepped_by_its_own_member_alone(kind):
-    """Grouping the episodes by member (one member steps each) gives what every member stepping every episode
-    gives for the episode's own member, across restarts, which keep the layout (and set a model's memory, e.g. the
-    linear model's previous action, as a new episode's)."""
+def grouped_and_every_member(kind: str, num_envs: int) -> tuple[ImaginedEnv, ImaginedEnv]:
+    """Imagined episodes of horizon 3 in a three-member ensemble of ``kind``: each stepped by its own member, and
+    every member stepping every episode (a vanishing disagreement penalty asks for that)."""
     ensemble = make_model(kind, 4, 1, hidden=(8,), members=3, seed=0)
     if kind == "linear":  # built with zero weights, which least squares would set
         with torch.no_grad():
             ensemble.weight.normal_(0.0, 0.1, generator=torch.Generator().manual_seed(0))
     action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
-    own = ImaginedEnv(ensemble, cartpole_starts(), 7, action_space, horizon=3)
-    every = ImaginedEnv(ensemble, cartpole_starts(), 7, action_space, horizon=3, disagreement_penalty=1e-30)
+    return (
+        ImaginedEnv(ensemble, cartpole_starts(), num_envs, action_space, horizon=3),
+        ImaginedEnv(ensemble, cartpole_starts(), num_envs, action_space, horizon=3, disagreement_penalty=1e-30),
+    )
+
+
+@pytest.mark.parametrize("kind", MODEL_KINDS)
+def test_each_imagined_episode_is_stepped_by_its_own_member_alone(kind):
+    """Grouping the episodes by member (one member steps each) gives what every member stepping every episode
+    gives for the episode's own member, across restarts, which keep the layout (and set a model's memory, e.g. the
+    linear model's previous action, as a new episode's)."""
+    own, every = grouped_and_every_member(kind, 7)
     actions = np.random.default_rng(0).uniform(-1, 1, (10, 7, 1)).astype(np.float32)
     for env in (own, every):
         env.reset(seed=list(range(7)))
@@ -465,13 +473,7 @@ def test_each_imagined_episode_is_stepped_by_its_own_member_alone(kind):
 def test_a_member_no_episode_drew_is_not_stepped_and_the_others_predict_bit_for_bit_as_before(kind):
     """Candidates compared on common starts share each episode's member: a generation of one episode a candidate
     draws one member for all, and only that member is stepped, predicting exactly what it does in the ensemble."""
-    ensemble = make_model(kind, 4, 1, hidden=(8,), members=3, seed=0)
-    if kind == "linear":  # built with zero weights, which least squares would set
-        with torch.no_grad():
-            ensemble.weight.normal_(0.0, 0.1, generator=torch.Generator().manual_seed(0))
-    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
-    shared = ImaginedEnv(ensemble, cartpole_starts(), 6, action_space, horizon=3)
-    every = ImaginedEnv(ensemble, cartpole_starts(), 6, action_space, horizon=3, disagreement_penalty=1e-30)
+    shared, every = grouped_and_every_member(kind, 6)
     for env in (shared, every):
         env.reset(seed=[11] * 6)
     assert len(shared._stepping) == 1 and len(every._stepping) == 3
