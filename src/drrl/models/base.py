@@ -74,13 +74,20 @@ def weights(model: LearnedModel | torch.nn.Module) -> dict[str, torch.Tensor]:
     return {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
 
 
+def rebuilt(module_type: type, settings: dict, state: dict[str, torch.Tensor]):
+    """``module_type(**settings)`` with the weights ``state``: the random initial weights it is made with, overwritten
+    at once, leave no trace in torch's generator."""
+    with torch.random.fork_rng(devices=[]):
+        module = module_type(**settings)
+    module.load_state_dict(state)
+    return module
+
+
 def members_of(model: LearnedModel, members: torch.Tensor) -> LearnedModel:
     """The ensemble of ``model``'s members ``members`` (indices) alone, each with its own weights: it predicts for
     them exactly what ``model`` does."""
-    with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace
-        subset = type(model)(**{**model.settings(), "members": len(members)})
-    subset.load_state_dict({name: tensor[members] for name, tensor in model.state_dict().items()})
-    return subset.to(model.device)  # type: ignore[attr-defined]
+    state = {name: tensor[members] for name, tensor in model.state_dict().items()}
+    return rebuilt(type(model), {**model.settings(), "members": len(members)}, state).to(model.device)
 
 
 def per_member(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:

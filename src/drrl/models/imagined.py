@@ -31,7 +31,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from drrl.models.base import LearnedModel, members_of, weights
+from drrl.models.base import LearnedModel, members_of, rebuilt, weights
 from drrl.models.data import model_actions
 from drrl.models.recurrent import WorldModel
 from drrl.models.remembering import memory_space
@@ -87,11 +87,8 @@ class ImaginedWorld:
         )
 
     def make(self, num_envs: int) -> ImaginedEnv:
-        with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace
-            model = self.model_type(**self.model_settings)
-        model.load_state_dict(self.model_state)
         return ImaginedEnv(
-            model,
+            rebuilt(self.model_type, self.model_settings, self.model_state),
             self.start_observations,
             num_envs,
             self.action_space,

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from drrl.models.base import weights
+from drrl.models.base import rebuilt, weights
 from drrl.models.data import EpisodeBuffer
 
 EndReward = Callable[[np.ndarray], np.ndarray]  # 1-based steps (N,) of ending steps -> their rewards (N,)
@@ -82,10 +82,7 @@ class LearnedOutcome:
     @cached_property
     def network(self) -> OutcomeNetwork:
         """The network, built from ``settings`` and ``state`` on the first call and kept."""
-        with torch.random.fork_rng(devices=[]):  # the initial weights, overwritten at once, leave no trace
-            network = OutcomeNetwork(**self.settings)
-        network.load_state_dict(self.state)
-        return network
+        return rebuilt(OutcomeNetwork, self.settings, self.state)
 
 
 def fit_outcome(
