@@ -7,9 +7,13 @@ own cameras (``Pixels/ID``, drrl.envs.rendered; ``--envs``), one env stepped wit
 itself. ``--figure RUN``: real frames beside the model's imagined
 frames over ``--steps`` steps from the same start, with the same actions: a real episode of the run's best centre
 policy, then the run's world model (its first member) fed the encoded first frame and those actions, its own
-predictions fed back (dynamical consistency), each predicted latent drawn by the run's autoencoder.
+predictions fed back (dynamical consistency), each predicted latent drawn by the run's autoencoder. ``--codes``:
+how well the frame autoencoder's features tell the cart-pole's state: the autoencoder fitted (its first fit's
+defaults) to the frames of 40 episodes of random linear state feedback, then an affine read-out of (s, ṡ, θ, θ̇) off
+the features fitted on those frames and scored (R²) on the frames of 40 fresh episodes, for ``--seeds`` seeds.
 
     python benchmarks/pixels.py --throughput --envs Pendulum-v1,InvertedPendulum-v5
+    python benchmarks/pixels.py --codes --seeds 3
     python benchmarks/model_based.py --env cartpole-pixels --seeds 5      # episodes to balanced from frames
     drrl train cartpole-pixels --model-based --out runs/pixels
     python benchmarks/pixels.py --figure runs/pixels --out docs/images/cartpole_pixels_imagined.png
@@ -30,8 +34,9 @@ import drrl.envs  # noqa: F401  (registers the envs)
 from drrl.envs.batch import make_batch_env
 from drrl.envs.registry import lookup
 from drrl.model_based import ModelBased
+from drrl.models import ModelBasedSettings
 from drrl.models.data import EpisodeRecorder
-from drrl.models.frames import Encoding
+from drrl.models.frames import Encoding, FrameAutoencoder, fit_autoencoder
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
 from drrl.train import open_run, prepare
@@ -103,6 +108,43 @@ def figure(run: Path, out: Path, steps: int, seed: int) -> None:
     plot(episode.observations[1:], dreamt, out, title=f"{setup.entry.env_id}: real (top) and imagined (bottom)")
 
 
+def codes(seeds: int) -> None:
+    settings = ModelBasedSettings()
+    print("| seed | frames fitted | fresh frames | R² s | R² ṡ | R² θ | R² θ̇ | fit s |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for seed in range(seeds):
+        frames, states = random_feedback_frames(40, 2 * seed)
+        fresh_frames, fresh_states = random_feedback_frames(40, 2 * seed + 1)
+        torch.manual_seed(seed)
+        autoencoder = FrameAutoencoder(frames.shape[1:], settings.latent_size)
+        start = time.perf_counter()
+        features = fit_autoencoder(autoencoder, frames, settings.frame_updates, seed=seed).features
+        seconds = time.perf_counter() - start
+        inputs, fresh = (np.c_[x, np.ones(len(x))] for x in (features, autoencoder.encode(fresh_frames)))
+        read_out = np.linalg.lstsq(inputs, states, rcond=None)[0]
+        residual = ((fresh @ read_out - fresh_states) ** 2).sum(0)
+        r2 = " | ".join(f"{v:.3f}" for v in 1 - residual / ((fresh_states - fresh_states.mean(0)) ** 2).sum(0))
+        print(f"| {seed} | {len(frames)} | {len(fresh_frames)} | {r2} | {seconds:.0f} |")
+
+
+def random_feedback_frames(episodes: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The observations and true states of ``episodes`` episodes of the pixel cart-pole, each under a random linear
+    feedback of the state (gains ~ N(0, 1)) plus noise (σ 0.5): the falling and swaying of a run's first episodes."""
+    env, rng = gymnasium.make("drrl/CartPolePixels-v0"), np.random.default_rng(seed)
+    observations, states = [], []
+    for episode in range(episodes):
+        observation, _ = env.reset(seed=1000 * seed + episode)
+        gains, done = rng.normal(0, 1, 4), False
+        while not done:
+            state = np.array(env.unwrapped.state, dtype=np.float64).reshape(-1)  # a copy: the env steps in place
+            observations.append(observation)
+            states.append(state)
+            action = np.clip([gains @ state + rng.normal(0, 0.5)], -1, 1).astype(np.float32)
+            observation, _, terminated, truncated, _ = env.step(action)
+            done = terminated or truncated
+    return np.array(observations), np.array(states)
+
+
 def plot(real: np.ndarray, imagined: np.ndarray, out: Path, title: str, columns: int = 10) -> None:
     """Every few steps' newest frame, real above imagined; the middle of each frame (rows 12–44, columns 8–56 of
     64: 4.5 m of track and the pole's reach), where the cart and pole are."""
@@ -133,12 +175,16 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("imagined_frames.png"))
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--codes", action="store_true")
+    parser.add_argument("--seeds", type=int, default=3, help="--codes: autoencoders fitted, each to its own data")
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.throughput:
         throughput(args.repeats, [env for env in args.envs.split(",") if env])
     if args.figure:
         figure(args.figure, args.out, args.steps, args.seed)
+    if args.codes:
+        codes(args.seeds)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ from drrl.cli import main
 from drrl.config import TrainConfig
 from drrl.envs.pixels import FRAME_SIZE, VIEW_HALF_WIDTH, draw_frames
 from drrl.loop import run
-from drrl.models.frames import Encoding, FrameAutoencoder, fit_autoencoder
+from drrl.models.frames import STILL, Encoding, FrameAutoencoder, fit_autoencoder
 from drrl.runs import RunFolder
 from drrl.train import prepare, resume, subscribers, train
 
@@ -103,7 +103,9 @@ def test_the_frame_autoencoder_learns_to_redraw_frames_and_reads_motion_off_its_
     assert features.shape == (256, 8) and features.dtype == np.float32
     np.testing.assert_allclose(fit.features, features, rtol=1e-5, atol=1e-5)  # the fit's own pass gives the same
     np.testing.assert_allclose(features.mean(0), 0, atol=1e-4)
-    np.testing.assert_allclose(features.std(0, ddof=1), 1, atol=1e-3)
+    moving = model.feature_std > STILL  # the others are divided by STILL, not blown up to unit size
+    np.testing.assert_allclose(features.std(0, ddof=1)[moving], 1, atol=1e-3)
+    assert (features.std(0)[~moving] < 1).all()
     with torch.no_grad():  # independently: the newest code, then its change since the older frame
         z = model(torch.as_tensor(observations.reshape(512, 1, 64, 64))).reshape(256, 2, 4)
         raw = torch.cat([z[:, 1], z[:, 1] - z[:, 0]], dim=1)
@@ -113,11 +115,22 @@ def test_the_frame_autoencoder_learns_to_redraw_frames_and_reads_motion_off_its_
     raw_still = model.encode(still) * model.feature_std.numpy() + model.feature_mean.numpy()
     np.testing.assert_allclose(raw_still[:, 4:], 0, atol=1e-5)
     assert model.draw(features[:3]).shape == (3, 1, 64, 64)
+    assert (z.abs() <= 1).all()  # keypoints: expected positions across the frame
+    fresh = states[::-1] + np.array([0.1, 0, 0, 0])  # the pairs moved 10 cm: frames the fit has not seen
+    codes = model.encode(np.stack([draw_frames(fresh), draw_frames(fresh)], axis=1))
+    assert linear_fit(codes, fresh[:, 0]) > 0.95  # the cart's place, read linearly off the keypoints
     env = Encoding(gym.make_vec("drrl/CartPolePixels-v0", num_envs=2, vectorization_mode="vector_entry_point"), model)
     encoded, _ = env.reset(seed=0)
     assert encoded.shape == (2, 8) and env.single_observation_space.shape == (8,)
     frames = draw_frames(env.unwrapped.state)
     np.testing.assert_allclose(encoded, model.encode(np.stack([frames, frames], axis=1)), rtol=1e-6)
+
+
+def linear_fit(x: np.ndarray, y: np.ndarray) -> float:
+    """R² of y's least-squares fit by an affine function of x."""
+    inputs = np.c_[x, np.ones(len(x))]
+    residual = y - inputs @ np.linalg.lstsq(inputs, y, rcond=None)[0]
+    return 1 - residual.var() / y.var()
 
 
 def test_a_model_free_run_on_frames_is_refused_in_one_line(tmp_path):
@@ -149,7 +162,7 @@ PIXELS = TrainConfig.model_validate(
             hidden=(8,),
             unfold=2,
             overshoot=2,
-            latent_size=3,
+            latent_size=2,
             fit_updates=20,
             refit_updates=20,
             frame_updates=6,
@@ -171,7 +184,7 @@ def test_a_pixel_run_learns_on_latents_resumes_exactly_and_eval_and_render_read_
     world = checkpoint["world"]
     assert world["frames"]["observations"].dtype == torch.uint8
     assert world["frames"]["observations"].shape[1:] == (2, 64, 64)
-    assert world["buffer"]["observations"].shape[1:] == (6,)  # the model learns on the latent state
+    assert world["buffer"]["observations"].shape[1:] == (4,)  # the model learns on the latent state
     assert len(world["frames"]["observations"]) == counters.real_steps + counters.real_episodes
     setup = prepare(PIXELS)
     with pytest.raises(KeyboardInterrupt):

@@ -109,10 +109,11 @@ class ModelBasedSettings(BaseModel):
 
     latent_size: int = Field(
         8,
-        ge=1,
+        ge=2,
         le=4096,
-        description="frames only: the numbers of a frame's code (the latent state: the newest frame's code and its "
-        "changes since the older frames)",
+        multiple_of=2,
+        description="frames only: the numbers of a frame's code, the (x, y) of latent_size / 2 keypoints (the latent "
+        "state: the newest frame's code and its changes since the older frames)",
     )
     frame_updates: int = Field(
         1000, ge=1, le=10**7, description="frames only: gradient steps of the frame autoencoder's first fit"
