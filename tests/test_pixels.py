@@ -198,3 +198,23 @@ def test_a_pixel_run_learns_on_latents_resumes_exactly_and_eval_and_render_read_
     assert "drrl/CartPolePixels-v0" in result.output and "balanced:" in result.output
     result = CliRunner().invoke(main, ["render", str(whole), "--out", str(tmp_path / "episode.gif")])
     assert result.exit_code == 0 and (tmp_path / "episode.gif").stat().st_size > 0, result.output
+
+
+def test_a_run_whose_encoder_weights_another_version_made_is_refused_in_one_line(tmp_path):
+    folder = RunFolder(tmp_path / "run")
+    train(PIXELS, folder.path)
+    checkpoint = folder.load_checkpoint()
+    checkpoint["world"]["autoencoder"]["encoder.0.weight"] = torch.zeros(8, 1, 4, 4)  # another encoder's first layer
+    folder.save_checkpoint(checkpoint)
+    saved = (folder.path / "checkpoint.safetensors").read_bytes()
+    for command in (
+        ["eval", str(folder.path), "--episodes", "2"],
+        ["render", str(folder.path), "--out", str(tmp_path / "episode.gif")],
+        ["train", "--resume", str(folder.path)],
+    ):
+        result = CliRunner().invoke(main, command)
+        errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+        assert result.exit_code != 0 and len(errors) == 1, result.output
+        assert "FrameAutoencoder weights do not fit" in errors[0] and "Traceback" not in result.output
+    assert (folder.path / "checkpoint.safetensors").read_bytes() == saved
+    assert not (tmp_path / "episode.gif").exists()

@@ -315,12 +315,12 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
     policy = build_policy(config, env)
     try:
         center = trained_center(checkpoint, policy, final)
+        seen = as_read(config, checkpoint, env)
     except ValueError as error:
         env.close()
         raise click.ClickException(f"{run_path}: {error}") from None
     step = checkpoint["iteration"] if final else checkpoint["best_iteration"]
     which = f"{'final' if final else 'best measured'} centre ({checkpoint.get('unit', 'generation')} {step})"
-    seen = as_read(config, checkpoint, env)
     result = measure(policy, center, seen, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
     env.close()
     returns = result.episode_returns.flatten().numpy()

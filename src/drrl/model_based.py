@@ -41,7 +41,7 @@ from drrl.config import TrainConfig
 from drrl.envs.batch import RegisteredEnv, is_frames
 from drrl.envs.registry import EnvEntry
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
-from drrl.models.base import LearnedModel, weights
+from drrl.models.base import LearnedModel, load_weights, weights
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, action_size
 from drrl.models.fit import FitReport, FitSettings
 from drrl.models.frames import Encoding, FrameAutoencoder, fit_autoencoder
@@ -331,11 +331,10 @@ class ModelBased(World):
         return state
 
     def load_state_dict(self, state: dict) -> None:
-        self.model.load_state_dict({name: tensor.to(self.model.device) for name, tensor in state["model"].items()})
+        load_weights(self.model, state["model"])
         self.buffer = EpisodeBuffer.from_state_dict(state["buffer"]) if state["buffer"] else EpisodeBuffer()
         if self.autoencoder is not None:
-            device = self.model.device
-            self.autoencoder.load_state_dict({name: tensor.to(device) for name, tensor in state["autoencoder"].items()})
+            load_weights(self.autoencoder, state["autoencoder"])
             self.frames = EpisodeBuffer.from_state_dict(state["frames"]) if state["frames"] else EpisodeBuffer()
 
     def title(self, setup: Setup) -> str:

@@ -25,6 +25,7 @@ from drrl.envs.registry import is_own, lookup
 from drrl.loop import Counters, Learner, Setup, Subscriber, World, check_checkpoint, restore, run
 from drrl.model_based import ModelBased, build_model, frame_autoencoder, reading
 from drrl.model_free import ModelFree
+from drrl.models.base import load_weights
 from drrl.models.settings import ModelBasedSettings
 from drrl.policies import Policy, make_policy
 from drrl.policy_gradient import POLICY_GRADIENTS, make_policy_gradient
@@ -288,12 +289,12 @@ def as_read(config: TrainConfig, checkpoint: dict, env: VectorEnv) -> VectorEnv:
     autoencoder = None
     if is_frames(space):
         autoencoder = frame_autoencoder(space.shape or (), settings, config.seed)
-        autoencoder.load_state_dict(world["autoencoder"])
+        load_weights(autoencoder, world["autoencoder"])
     model = None
     if settings.policy_memory:
         size = autoencoder.features if autoencoder else observation_size(space)
         model = build_model(settings, size, env.single_action_space, config.seed)
-        model.load_state_dict(world["model"])
+        load_weights(model, world["model"])
     return reading(env, autoencoder, model)
 
 

@@ -74,6 +74,19 @@ def weights(model: LearnedModel | torch.nn.Module) -> dict[str, torch.Tensor]:
     return {name: tensor.detach().cpu().clone() for name, tensor in model.state_dict().items()}
 
 
+def load_weights(module: LearnedModel | torch.nn.Module, state: dict[str, torch.Tensor]) -> None:
+    """Load a checkpoint's ``state`` into ``module``, on the module's device. Weights of other names or shapes (a run
+    made by another version of drrl) are a ValueError that says so in one line."""
+    device = next(iter(module.state_dict().values())).device
+    try:
+        module.load_state_dict({name: tensor.to(device) for name, tensor in state.items()})
+    except RuntimeError:
+        raise ValueError(
+            f"the checkpoint's {type(module).__name__} weights do not fit this version of drrl's (another version "
+            "made them?); train the run again"
+        ) from None
+
+
 def rebuilt(module_type: type, settings: dict, state: dict[str, torch.Tensor]):
     """``module_type(**settings)`` with the weights ``state``: the random initial weights it is made with, overwritten
     at once, leave no trace in torch's generator."""
