@@ -3,7 +3,6 @@
 import csv
 import os
 import signal
-import threading
 import time
 
 import pytest
@@ -51,8 +50,7 @@ POPSIZE, EPISODES = 101, 3  # an odd split: chunks of 51 and 50 candidates
 
 @pytest.fixture(scope="module")
 def backends():
-    """The local backend and a two-worker Ray one on the same workload: Pendulum's episodes all last 200 steps, so
-    a chunk takes a good fraction of a second, time to kill its worker in the middle."""
+    """The local backend and a two-worker Ray one on the same workload (Pendulum's episodes all last 200 steps)."""
     workload = Workload(make_policy("mlp:8", 3, 1), "Pendulum-v1", POPSIZE, EPISODES)
     local, remote = make_backend("local", workload), make_backend("ray", workload, workers=2)
     params = torch.randn(POPSIZE, workload.policy.num_params, generator=torch.Generator().manual_seed(0))
@@ -79,10 +77,21 @@ def test_ray_chunks_give_the_local_backend_s_numbers(backends):
 def test_a_killed_worker_s_chunk_runs_again_and_the_numbers_do_not_change(backends):
     _local, remote, params, expected = backends
     victim = remote.pids()[0]
-    threading.Timer(0.1, os.kill, (victim, signal.SIGKILL)).start()  # while its chunk is running
+    os.kill(victim, signal.SIGKILL)  # before its chunk is sent: a chunk of 0.1 s could outrun a timed kill
+    deadline = time.perf_counter() + 10
+    while alive(victim) and time.perf_counter() < deadline:
+        time.sleep(0.01)
     with pytest.warns(UserWarning, match="a Ray worker died while evaluating candidates 0–50"):
         result = remote.evaluate(params, seed=5)
     assert remote.lost == 1 and same(result, expected)
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
 
 
 def test_a_cluster_address_nothing_answers_at_is_refused_at_once():
