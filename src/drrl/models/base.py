@@ -81,9 +81,10 @@ def load_weights(module: LearnedModel | torch.nn.Module, state: dict[str, torch.
     try:
         module.load_state_dict({name: tensor.to(device) for name, tensor in state.items()})
     except RuntimeError:
+        name = type(module).__name__
         raise ValueError(
-            f"the checkpoint's {type(module).__name__} weights do not fit this version of drrl's (another version "
-            "made them?); train the run again"
+            f"the checkpoint's {name} weights do not fit this version of drrl's {name} (a run made by another "
+            "version?); train the run again"
         ) from None
 
 
