@@ -33,10 +33,10 @@ import torch
 import drrl.envs  # noqa: F401  (registers the envs)
 from drrl.envs.batch import make_batch_env
 from drrl.envs.registry import lookup
-from drrl.model_based import ModelBased
+from drrl.model_based import ModelBased, frame_autoencoder
 from drrl.models import ModelBasedSettings
 from drrl.models.data import EpisodeRecorder
-from drrl.models.frames import Encoding, FrameAutoencoder, fit_autoencoder
+from drrl.models.frames import Encoding, fit_autoencoder
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
 from drrl.train import open_run, prepare
@@ -115,8 +115,7 @@ def codes(seeds: int) -> None:
     for seed in range(seeds):
         frames, states = random_feedback_frames(40, 2 * seed)
         fresh_frames, fresh_states = random_feedback_frames(40, 2 * seed + 1)
-        torch.manual_seed(seed)
-        autoencoder = FrameAutoencoder(frames.shape[1:], settings.latent_size)
+        autoencoder = frame_autoencoder(frames.shape[1:], settings, seed)
         start = time.perf_counter()
         features = fit_autoencoder(autoencoder, frames, settings.frame_updates, seed=seed).features
         seconds = time.perf_counter() - start

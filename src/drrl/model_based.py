@@ -106,7 +106,7 @@ class ModelBased(World):
         observation_size = self.autoencoder.features if self.autoencoder else int(np.prod(seen.shape or ()))
         self.model = build_model(settings, observation_size, eval_env.single_action_space, config.seed, config.device)
         if start_model is not None:  # another run's model to fine-tune (``drrl.train.transferred``)
-            self.model.load_state_dict({name: tensor.to(config.device) for name, tensor in start_model.items()})
+            load_weights(self.model, start_model)
         self.real_horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
         self.horizon = min(self.real_horizon, settings.imagined_horizon or self.real_horizon)  # the search's
         known = settings.reward in ("auto", "known")
