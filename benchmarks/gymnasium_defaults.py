@@ -8,6 +8,7 @@ measured on 50 episodes, as ``benchmarks/ppo_zoo.py`` measures PPO). The solved 
 defaults at.
 
     python benchmarks/gymnasium_defaults.py --cores 0,1
+    python benchmarks/gymnasium_defaults.py --envs Hopper-v5 --cores 1 --seed 2
 """
 
 from __future__ import annotations
@@ -43,12 +44,13 @@ def first_at_level(metrics: Path, level: float) -> dict | None:
     return None
 
 
-def one_run(env: str, core: int, folder: Path) -> dict:
+def one_run(env: str, core: int, folder: Path, seed: int) -> dict:
     drrl = Path(sys.executable).with_name("drrl")
     out = folder / env
     pin = ["taskset", "-c", str(core)]
     start = time.perf_counter()
-    subprocess.run([*pin, drrl, "train", env, "--quiet", "--out", out], check=True, capture_output=True)
+    train = [*pin, drrl, "train", env, "--seed", str(seed), "--quiet", "--out", out]
+    subprocess.run(train, check=True, capture_output=True)
     wall = time.perf_counter() - start
     evaluated = subprocess.run([*pin, drrl, "eval", out], check=True, capture_output=True, text=True).stdout
     lines = (out / "metrics.csv").read_text().splitlines()
@@ -70,6 +72,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", default=",".join(TARGETS))
     parser.add_argument("--cores", default="0,1", help="comma-separated cores, one run at a time on each")
+    parser.add_argument("--seed", type=int, default=0, help="every run's seed")
     args = parser.parse_args()
     envs = args.envs.split(",")
     free = queue.Queue()
@@ -80,7 +83,7 @@ def main() -> None:
     def on_a_free_core(env: str) -> dict:
         core = free.get()
         try:
-            return one_run(env, core, Path(folder))
+            return one_run(env, core, Path(folder), args.seed)
         finally:
             free.put(core)
 

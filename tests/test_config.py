@@ -66,6 +66,12 @@ def test_gymnasiums_envs_start_from_their_own_model_free_defaults_and_given_sett
     assert TrainConfig(env="Hopper-v5", model_based={}).policy == TrainConfig().policy  # model-based: its own
 
 
+def test_hopper_s_search_is_not_told_of_its_survival_bonus_and_other_envs_are_told_all():
+    assert TrainConfig(env="Hopper-v5").reward_shift == 1.0  # Hopper-v5 pays 1 a step for staying up
+    assert TrainConfig(env="Hopper-v5", reward_shift=0).reward_shift == 0.0  # given wins
+    assert TrainConfig(env="Walker2d-v5").reward_shift == TrainConfig().reward_shift == 0.0
+
+
 def test_the_swing_up_starts_from_its_own_settings_and_its_config_file_spells_out_the_model_based_ones():
     swing_up = TrainConfig(env="cartpole-swingup")
     assert (swing_up.policy, swing_up.popsize, swing_up.budget, swing_up.sigma_init) == ("mlp:16", 200, 40_000, 0.25)

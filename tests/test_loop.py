@@ -266,3 +266,21 @@ def test_measuring_takes_about_a_quarter_of_the_env_steps_by_default():
     assert counters.eval_steps - last <= 0.25 * (counters.real_steps + counters.eval_steps)
     every = train(TrainConfig(budget=400, seed=0, eval_share=1.0))
     assert every.eval_episodes == 50 * 50 and every.real_steps == counters.real_steps  # measuring changes no training
+
+
+@pytest.mark.parametrize("search", ["pgpe", "reinforce"])
+def test_the_search_is_told_returns_less_the_reward_shift_and_the_metrics_keep_the_env_s_own(search):
+    """CartPole-v1 pays 1 a step, so with a shift of 1 every episode is worth 0 to the search: μ does not move
+    (PGPE's tied generations keep it, REINFORCE's gradient is 0). Without the shift it moves."""
+    centres = []
+    for shift in (1.0, 0.0):
+        config = TrainConfig(env="CartPole-v1", search=search, budget=64, reward_shift=shift, seed=2)
+        setup = prepare(config)
+        start = setup.search.center.clone()
+        counters = run(setup, [])
+        centres.append((start, setup.search.center))
+        returns = [row["mean_return"] for row in counters.rows]
+        assert min(returns) >= 8  # the env's own returns: every episode lasts at least 8 steps
+        setup.close()
+    (start, shifted), (other_start, unshifted) = centres
+    assert torch.equal(start, shifted) and not torch.equal(other_start, unshifted)

@@ -26,7 +26,9 @@ def bandit_episodes(theta: float, sigma: float, target: float, batch: int, seed:
     generator = torch.Generator().manual_seed(seed)
     actions = theta + sigma * torch.randn(1, batch, 1, generator=generator)
     rewards = -((actions[..., 0] - target) ** 2).double()
-    evaluation = Evaluation(rewards.reshape(1, batch), torch.ones(1, batch, dtype=torch.bool), batch, batch)
+    evaluation = Evaluation(
+        rewards.reshape(1, batch), torch.ones(1, batch, dtype=torch.bool), torch.ones(1, batch, dtype=torch.int64)
+    )
     return Episodes(torch.ones(1, batch, 1), actions, rewards, torch.ones(1, batch, dtype=torch.bool), evaluation)
 
 

@@ -16,7 +16,7 @@ def one_at_a_time(policy, params, env_id, seeds, episodes):
     """Reference: each episode alone on a single env, summing its rewards until it ends."""
     env = gymnasium.make(env_id)
     action_map = ActionMap(env.action_space)
-    returns, steps = np.zeros(len(seeds)), 0
+    returns, steps = np.zeros(len(seeds)), np.zeros(len(seeds), dtype=np.int64)
     for slot, seed in enumerate(seeds):
         weights = policy.unflatten(params[slot // episodes : slot // episodes + 1])
         obs, _ = env.reset(seed=seed)
@@ -25,9 +25,9 @@ def one_at_a_time(policy, params, env_id, seeds, episodes):
             raw, _ = policy.act(weights, torch.as_tensor(obs, dtype=torch.float32).view(1, 1, -1), None)
             obs, reward, terminated, truncated, _ = env.step(action_map(raw.view(1, -1))[0])
             returns[slot] += reward
-            steps += 1
+            steps[slot] += 1
             done = terminated or truncated
-    return returns.reshape(len(params), episodes), steps
+    return returns.reshape(len(params), episodes), steps.reshape(len(params), episodes)
 
 
 @pytest.mark.parametrize("env_id", ["CartPole-v1", "Pendulum-v1"])
@@ -39,8 +39,11 @@ def test_batched_rollout_equals_one_episode_at_a_time(env_id):
     result = evaluate(policy, params, env, episodes, seed=7)
     expected, steps = one_at_a_time(policy, params, env_id, episode_seeds(7, population, episodes), episodes)
     np.testing.assert_allclose(result.episode_returns.numpy(), expected, rtol=1e-6)
-    assert result.steps == steps and result.episodes == population * episodes
+    np.testing.assert_array_equal(result.episode_steps.numpy(), steps)
+    assert result.steps == steps.sum() and result.episodes == population * episodes
     torch.testing.assert_close(result.returns, result.episode_returns.mean(dim=1))
+    shifted = (expected - 0.5 * steps).mean(axis=1)  # 0.5 taken from every step's reward
+    np.testing.assert_allclose(result.returns_less(0.5).numpy(), shifted, rtol=1e-6)
 
 
 def test_cartpole_episodes_that_fail_early_are_masked_and_counted_exactly():

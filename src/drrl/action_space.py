@@ -14,6 +14,8 @@ needed here, not only the returns a backend sends back.
 
 from __future__ import annotations
 
+import dataclasses
+
 from drrl.config import TrainConfig
 from drrl.loop import TRAINING, Counters, Setup, derive_seed
 from drrl.model_free import ModelFree, counted
@@ -38,7 +40,8 @@ class ActionSpace(ModelFree):
         assert isinstance(method, PolicyGradient)
         seed = derive_seed(self.config.seed, iteration, TRAINING)
         episodes = collect(method.explorer(), method.center, self.local.env, seed, self.config.max_steps)
-        method.improve(episodes)
+        shift = self.config.reward_shift
+        method.improve(dataclasses.replace(episodes, rewards=episodes.rewards - shift * episodes.alive))
         result = episodes.evaluation
         return counted(counters, iteration, result) | {
             "best_return": float(result.episode_returns.max()),  # the best episode: all ran the same θ

@@ -101,6 +101,11 @@ def main(ctx: click.Context, debug: bool) -> None:
     click.BOOL,
     "feed the policy observations normalised by running statistics (unset: on for Gymnasium's envs, model-free)",
 )
+@setting(
+    "reward_shift",
+    float,
+    "taken from every training step's reward the search is told of (a survival bonus; Hopper-v5 starts at 1)",
+)
 @setting("seed", INTEGER, "random seed")
 @setting("checkpoint_every", INTEGER, "generations between checkpoints")
 @setting(

@@ -136,6 +136,13 @@ class TrainConfig(BaseModel):
     )
     checkpoint_every: int = Field(10, ge=1, le=10**9, description="generations between checkpoints")
     max_steps: int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
+    reward_shift: float = Field(
+        0.0,
+        ge=-1e6,
+        le=1e6,
+        description="taken from the reward of every training step the search is told of (measuring sees the env's "
+        "own): a survival bonus the search should not chase (Hopper-v5 starts at 1)",
+    )
     observation_norm: bool | None = Field(
         None,
         description="feed the policy observations normalised by the mean and "

@@ -57,13 +57,18 @@ def derive_seed(seed: int, step: int, stream: int) -> int:
 
 
 def run_generation(
-    search: Search, backend: Backend, seed: int, deploy: Callable[[torch.Tensor], torch.Tensor] | None = None
+    search: Search,
+    backend: Backend,
+    seed: int,
+    deploy: Callable[[torch.Tensor], torch.Tensor] | None = None,
+    reward_shift: float = 0.0,
 ) -> tuple[Evaluation, dict[str, float]]:
     """One generation: ask the search for candidates, evaluate them on the backend (as ``deploy`` turns them into
-    the env's policies, if given), tell the search their mean returns."""
+    the env's policies, if given), tell the search their mean returns, ``reward_shift`` taken from every step's
+    reward."""
     candidates = search.ask()
     evaluation = backend.evaluate(candidates if deploy is None else deploy(candidates), seed)
-    return evaluation, search.tell(evaluation.returns.to(torch.float32))
+    return evaluation, search.tell(evaluation.returns_less(reward_shift).to(torch.float32))
 
 
 @dataclass

@@ -307,7 +307,7 @@ class ModelBased(World):
         for generation in range(1, self.settings.generations + 1):
             seed = derive_seed(self.config.seed, iteration * 1_000_000 + generation, IMAGINING)
             try:
-                evaluation, metrics = run_generation(search, self.backend, seed)
+                evaluation, metrics = run_generation(search, self.backend, seed, reward_shift=self.config.reward_shift)
             except NonFiniteOutput as error:
                 raise ModelDiverged(
                     f"iteration {iteration}, generation {generation}: the model imagined {error}; "

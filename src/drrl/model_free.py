@@ -57,7 +57,11 @@ class ModelFree(World):
         assert isinstance(search, Search)
         try:
             result, metrics = run_generation(
-                search, self.backend, derive_seed(self.config.seed, iteration, TRAINING), self.deployed
+                search,
+                self.backend,
+                derive_seed(self.config.seed, iteration, TRAINING),
+                self.deployed,
+                self.config.reward_shift,
             )
         except NonFiniteOutput as error:
             raise NonFiniteOutput(f"generation {iteration}: {error}; stopped before updating the search") from None

@@ -13,7 +13,7 @@ import numpy as np
 
 SOLVED_LEVELS = {"Pendulum-v1": -200.0}  # Pendulum-v1's spec has no reward_threshold
 
-DEFAULTS = {
+DEFAULTS: dict[str, dict] = {
     # −145.4 over 50 fresh episodes after 51,200 episodes (33 s with EnvPool); as the default, seeds 0–2 gave −172,
     # −861 and −174. PGPE with the same policy stayed below −800: its one episode a candidate from random starts is
     # too noisy to rank swing-up policies.
@@ -25,6 +25,11 @@ DEFAULTS = {
         "sigma_init": 0.5,
         "budget": 51200,
     },
+    # Hopper pays 1 a step for staying up, 1,000 for a hopper that only stays up all episode: told of it, the
+    # defaults ended at 1,333. Taken off every training step, as Augmented Random Search does (Mania et al. 2018,
+    # its "shift"), seeds 0-2 reached 3,032, 3,323 and 2,928 in 3,200 episodes. Not a rule for every locomotion task:
+    # Walker2d-v5 with the same shift learned to fall at once (4.3; 2,023 without).
+    "Hopper-v5": {"reward_shift": 1.0},
 }
 
 

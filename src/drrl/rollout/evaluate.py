@@ -30,14 +30,27 @@ class Evaluation:
 
     episode_returns: torch.Tensor  # (P, E)
     terminated: torch.Tensor  # (P, E) bool: the episode ended by failure or success, not by a time limit
-    steps: int  # environment steps taken by episodes still running, summed over slots
-    episodes: int
+    episode_steps: torch.Tensor  # (P, E) int64: environment steps each episode took while it ran
     moments: Moments | None = None  # of the observations acted on in running episodes, a row per slot, if asked
 
     @property
     def returns(self) -> torch.Tensor:
         """Each candidate's mean return over its E episodes, shape (P,)."""
         return self.episode_returns.mean(dim=1)
+
+    @property
+    def steps(self) -> int:
+        """Environment steps taken by running episodes, summed over slots."""
+        return int(self.episode_steps.sum())
+
+    @property
+    def episodes(self) -> int:
+        return self.episode_returns.numel()
+
+    def returns_less(self, per_step: float) -> torch.Tensor:
+        """Each candidate's mean return with ``per_step`` taken from the reward of every step its episodes took,
+        shape (P,)."""
+        return (self.episode_returns - per_step * self.episode_steps).mean(dim=1)
 
     @staticmethod
     def concat(parts: list[Evaluation]) -> Evaluation:
@@ -46,8 +59,7 @@ class Evaluation:
         return Evaluation(
             episode_returns=torch.cat([part.episode_returns for part in parts]),
             terminated=torch.cat([part.terminated for part in parts]),
-            steps=sum(part.steps for part in parts),
-            episodes=sum(part.episodes for part in parts),
+            episode_steps=torch.cat([part.episode_steps for part in parts]),
             moments=None if None in moments else Moments.concat(cast(list[Moments], moments)),
         )
 
@@ -92,7 +104,7 @@ def evaluate(
     returns = np.zeros(slots)
     running = np.ones(slots, dtype=bool)
     terminated_slots = np.zeros(slots, dtype=bool)
-    steps = 0
+    steps = np.zeros(slots, dtype=np.int64)
     t = 0
     seen = Moments.empty(slots, policy.observation_size) if moments else None
     while running.any() and (max_steps is None or t < max_steps):
@@ -103,7 +115,7 @@ def evaluate(
         obs, reward, terminated, truncated, _ = env.step(action_map(raw.reshape(slots, -1)))
         _check_finite("reward", reward, running, t + 1, episodes)
         _check_finite("observation", obs, running, t + 1, episodes)
-        steps += int(np.count_nonzero(running))
+        steps += running
         np.add(returns, reward, out=returns, where=running)
         terminated_slots |= running & terminated
         running &= ~(terminated | truncated)
@@ -113,8 +125,7 @@ def evaluate(
     return Evaluation(
         episode_returns=episode_returns,
         terminated=torch.as_tensor(terminated_slots).view(population, episodes),
-        steps=steps,
-        episodes=slots,
+        episode_steps=torch.as_tensor(steps).view(population, episodes),
         moments=seen,
     )
 
