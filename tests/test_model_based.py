@@ -223,7 +223,7 @@ def test_model_based_settings_are_validated_with_field_value_and_choices(model_b
 @pytest.mark.parametrize(
     "change, message",
     [
-        (dict(env="Pendulum-v1", model_based={"reward": "known"}), "no closed-form reward is known"),
+        (dict(env="MountainCarContinuous-v0", model_based={"reward": "known"}), "no closed-form reward is known"),
         (dict(budget=1), "fewer than model_based.initial_episodes"),
     ],
 )
@@ -530,6 +530,25 @@ def test_gymnasium_rewards_and_ends_in_closed_form_are_gymnasiums_own(env_id):
             assert (rewards[0], bool(ended[0])) == (real_reward, terminated), (episode, step)
             ends, done = ends + terminated, terminated or truncated
     assert ends == 50
+
+
+def test_pendulum_s_reward_on_the_next_observation_is_gymnasium_s_on_the_state_of_the_next_step():
+    """Gymnasium charges a step for the state it starts from and its torque: with no torque, the reward of step
+    t + 1 is the closed form's of the observation after step t (up to the observation's float32), over 20
+    episodes from random starts and random speeds."""
+    import gymnasium
+
+    from drrl.envs.registry import lookup
+
+    reward = lookup("Pendulum-v1").reward
+    assert reward is not None
+    env = gymnasium.make("Pendulum-v1")
+    for episode in range(20):
+        observation, _ = env.reset(seed=episode)
+        for _ in range(30):
+            ours, ended = reward(observation[None].astype(np.float64), np.array([1]))
+            observation, real_reward, _, _, _ = env.step(np.zeros(1, dtype=np.float32))
+            assert ours[0] == pytest.approx(real_reward, abs=1e-5) and not ended[0]
 
 
 @pytest.mark.parametrize(
