@@ -72,6 +72,21 @@ def test_hopper_s_search_is_not_told_of_its_survival_bonus_and_other_envs_are_to
     assert TrainConfig(env="Walker2d-v5").reward_shift == TrainConfig().reward_shift == 0.0
 
 
+def test_pendulum_s_model_based_run_starts_from_its_own_settings_which_its_config_file_spells_out():
+    model_based = TrainConfig(env="Pendulum-v1", model_based={})
+    assert (model_based.search, model_based.policy, model_based.sigma_init, model_based.budget) == (
+        "cmaes",
+        "mlp:16",
+        0.5,
+        30,
+    )
+    assert model_based.model_based is not None and model_based.model_based.generations == 120
+    assert TrainConfig(env="Pendulum-v1", model_based={"generations": 10}).model_based.generations == 10  # merged
+    assert TrainConfig(env="Acrobot-v1", model_based={}).policy == TrainConfig(model_based={}).policy  # none of its own
+    path = Path(__file__).parents[1] / "configs" / "pendulum-model-based.toml"
+    assert TrainConfig.model_validate(load_config_file(path)) == model_based
+
+
 def test_the_swing_up_starts_from_its_own_settings_and_its_config_file_spells_out_the_model_based_ones():
     swing_up = TrainConfig(env="cartpole-swingup")
     assert (swing_up.policy, swing_up.popsize, swing_up.budget, swing_up.sigma_init) == ("mlp:16", 200, 40_000, 0.25)

@@ -11,7 +11,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from drrl.envs.batch import ENGINES
-from drrl.envs.registry import is_own, lookup, own_entry
+from drrl.envs.registry import is_own, lookup
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings, one_of
 from drrl.policy_gradient import POLICY_GRADIENTS
 from drrl.search import SEARCHES
@@ -32,13 +32,17 @@ GYMNASIUM_DEFAULTS = {
 }
 
 
-def gymnasium_defaults(env: str) -> dict:
-    """The settings measured for a Gymnasium env beyond ``GYMNASIUM_DEFAULTS`` (its registry entry's defaults);
-    none for a name that is no env (the env's own check says why)."""
+def env_defaults(env: object, model_based: bool = False) -> dict:
+    """The settings measured for ``env`` beyond the general defaults: its registry entry's ``defaults``, or its
+    ``model_based_defaults`` for a ``model_based`` run; none for a name that is no env (the env's own check says
+    why)."""
+    if not isinstance(env, str):
+        return {}
     try:
-        return lookup(env).defaults
+        entry = lookup(env)
     except ValueError:
         return {}
+    return dict(entry.model_based_defaults if model_based else entry.defaults)
 
 
 # Action-space policy gradients' defaults, chosen on the thesis cart-pole among 12 settings each (step rule and size,
@@ -99,7 +103,7 @@ class TrainConfig(BaseModel):
     ``MODEL_BASED_DEFAULTS`` and the env's own ``EnvEntry.model_based_defaults`` instead of the model-free
     defaults. A model-free run on one of drrl's envs starts from its ``EnvEntry.defaults`` (the swing-up has
     some), on an env that is not drrl's own from ``GYMNASIUM_DEFAULTS`` and what drrl measured for that env
-    (``gymnasium_defaults``: Pendulum-v1 needs CMA-ES and a nonlinear policy), an action-space policy gradient's from
+    (``env_defaults``: Pendulum-v1 needs CMA-ES and a nonlinear policy), an action-space policy gradient's from
     ``POLICY_GRADIENT_DEFAULTS``. All merge in one place. sampler,
     optimizer, center_lr, sigma_lr, fitness_shaping, baseline_decay and max_sigma_change are
     PGPE's; CMA-ES (``search = "cmaes"`` or ``"sep-cmaes"``) uses popsize, sigma_init and seed only. The
@@ -189,10 +193,9 @@ class TrainConfig(BaseModel):
         if not isinstance(data, dict):
             return data
         env = data.get("env", "cartpole")
-        entry = own_entry(env) if isinstance(env, str) else None
         table = data.get("model_based")
         if table is not None:
-            preset = dict(entry.model_based_defaults) if entry else {}
+            preset = env_defaults(env, model_based=True)
             if isinstance(table, dict):
                 table = {**preset.pop("model_based", {}), **table}
             return {**MODEL_BASED_DEFAULTS, **preset, **data, "model_based": table}
@@ -200,8 +203,8 @@ class TrainConfig(BaseModel):
         if isinstance(search, str) and search in POLICY_GRADIENT_DEFAULTS:
             return {**POLICY_GRADIENT_DEFAULTS[search], **data}
         if isinstance(env, str) and not is_own(env):
-            return {**GYMNASIUM_DEFAULTS, **gymnasium_defaults(env), **data}
-        return {**entry.defaults, **data} if entry else data
+            return {**GYMNASIUM_DEFAULTS, **env_defaults(env), **data}
+        return {**env_defaults(env), **data}
 
     @model_validator(mode="after")
     def _consistent(self) -> TrainConfig:

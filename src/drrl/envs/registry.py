@@ -17,13 +17,13 @@ from __future__ import annotations
 import difflib
 import importlib
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gymnasium
 import numpy as np
 import torch
 
-from drrl.envs.gymnasium_tasks import DEFAULTS, REWARDS, SOLVED_LEVELS
+from drrl.envs.gymnasium_tasks import DEFAULTS, MODEL_BASED_DEFAULTS, REWARDS, SOLVED_LEVELS
 
 # (episode_returns (P, E), terminated (P, E)) -> {criterion: met}
 Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
@@ -177,8 +177,14 @@ def gymnasium_entry(env_id: str) -> EnvEntry:
     it."""
     threshold = gymnasium.spec(env_id).reward_threshold
     threshold = SOLVED_LEVELS.get(env_id) if threshold is None else threshold
+    entry = EnvEntry(
+        env_id,
+        reward=REWARDS.get(env_id),
+        defaults=DEFAULTS.get(env_id, {}),
+        model_based_defaults=MODEL_BASED_DEFAULTS.get(env_id, {}),
+    )
     if threshold is None:
-        return EnvEntry(env_id, reward=REWARDS.get(env_id))
+        return entry
 
     def verdict(episode_returns: torch.Tensor, terminated: torch.Tensor) -> dict[str, bool]:
         return {"solved": bool(episode_returns.mean() >= threshold)}
@@ -186,6 +192,4 @@ def gymnasium_entry(env_id: str) -> EnvEntry:
     def explain(episode_returns: torch.Tensor, terminated: torch.Tensor) -> str:
         return f"({env_id} counts as solved at a mean return ≥ {threshold:g})"
 
-    return EnvEntry(
-        env_id, verdict=verdict, explain=explain, reward=REWARDS.get(env_id), defaults=DEFAULTS.get(env_id, {})
-    )
+    return replace(entry, verdict=verdict, explain=explain)
