@@ -45,6 +45,7 @@ class Evaluation:
 
     @property
     def episodes(self) -> int:
+        """Episodes run: P·E."""
         return self.episode_returns.numel()
 
     def returns_less(self, per_step: float) -> torch.Tensor:
