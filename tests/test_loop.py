@@ -251,9 +251,11 @@ def test_the_model_guard_warns_when_the_model_promises_far_more_than_reality_giv
     guard.row(None, counters, {"center_return": -45.0})  # a model-free row
     assert guard.warned == 1 and "promised the centre 654.0, reality gave 4.6" in said[0]
     assert "--ensemble 5" in said[0] and "disagreement penalty" in said[0]
+    guard.row(None, Counters(iteration=4), {"imagined_center_return": 600.0, "center_return": 2.0})
+    assert said[1].endswith("iteration 4: the world model promised the centre 600.0, reality gave 2.0; exploited again")
     five = SimpleNamespace(config=SimpleNamespace(model_based=ModelBasedSettings(ensemble_size=5)))
-    guard.row(five, counters, {"imagined_center_return": 654.0, "center_return": 4.6})
-    assert "--ensemble" not in said[1] and "disagreement penalty" in said[1]  # only what the run does not do
+    ModelGuard(say=said.append).row(five, counters, {"imagined_center_return": 654.0, "center_return": 4.6})
+    assert "--ensemble" not in said[2] and "disagreement penalty" in said[2]  # only what the run does not do
 
 
 def test_measuring_takes_about_a_quarter_of_the_env_steps_by_default():

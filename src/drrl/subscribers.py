@@ -119,7 +119,8 @@ class TensorBoardLogger(Subscriber):
 class ModelGuard(Subscriber):
     """Warns when a model-based iteration's centre earns far less in reality than in the model: the search has
     found the model's errors rather than a better policy (the curse of model bias, thesis 2.3). "Far": the
-    imagined return exceeds the real one by more than ``tolerance`` of the larger of the two in size."""
+    imagined return exceeds the real one by more than ``tolerance`` of the larger of the two in size. What to try is
+    said with the first warning of a run; later ones give the figures alone."""
 
     def __init__(self, tolerance: float = 0.5, say=tqdm.write):
         self.tolerance, self.say = tolerance, say
@@ -130,10 +131,15 @@ class ModelGuard(Subscriber):
         if promised is None or math.isnan(real) or promised - real <= self.tolerance * max(abs(promised), abs(real)):
             return
         self.warned += 1
+        advice = (
+            "the search is exploiting the model's errors. Try "
+            + ", ".join(remedies(None if setup is None else setup.config.model_based))
+            if self.warned == 1
+            else "exploited again"
+        )
         self.say(
             f"warning: iteration {counters.iteration}: the world model promised the centre {promised:.1f}, "
-            f"reality gave {real:.1f}; the search is exploiting the model's errors. Try "
-            + ", ".join(remedies(None if setup is None else setup.config.model_based))
+            f"reality gave {real:.1f}; {advice}"
         )
 
 
