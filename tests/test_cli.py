@@ -138,6 +138,12 @@ def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
     assert "(Pendulum-v1 counts as solved at a mean return ≥ -200)" in evaluation.output
 
 
+def test_a_model_based_run_that_misses_is_told_the_env_s_own_model_based_settings(tmp_path):
+    result, _ = train(tmp_path, "Pendulum-v1", "--model-based", "--budget", "2", "--generations", "1", "--quiet")
+    assert result.exit_code == 0, result.output
+    assert "the centre met none of Pendulum-v1's criteria (solved); settings that suit it: --budget 30" in result.output
+
+
 def test_the_settings_measured_for_gymnasiums_tasks_are_their_defaults_and_valid():
     for env_id, settings in DEFAULTS.items():
         config = TrainConfig(env=env_id)

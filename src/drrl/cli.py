@@ -231,10 +231,15 @@ def resume_run(
 
 
 def overridden_defaults(setup: Setup) -> dict:
-    """The env's own model-free defaults that a model-free run set otherwise: what to go back to after a miss."""
-    if setup.config.model_based is not None:
-        return {}
-    return {name: value for name, value in setup.entry.defaults.items() if getattr(setup.config, name) != value}
+    """The env's own defaults (model-free or model-based, as the run) that the run set otherwise, the model's own
+    table aside: what to go back to after a miss."""
+    model_based = setup.config.model_based is not None
+    defaults = setup.entry.model_based_defaults if model_based else setup.entry.defaults
+    return {
+        name: value
+        for name, value in defaults.items()
+        if name != "model_based" and getattr(setup.config, name) != value
+    }
 
 
 def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Counters | None = None) -> None:
