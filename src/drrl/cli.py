@@ -271,9 +271,8 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
     )
     click.echo(
         f"done: {counters.iteration} {unit}s, {counters.real_episodes} real episodes, "
-        f"{counters.real_steps} real steps{imagined}; centre policy's return "
-        f"{counters.rows[-1]['center_return']:.1f} (best {counters.best_center_return:.1f}, {unit} "
-        f"{counters.best_iteration})"
+        f"{counters.real_steps} real steps{imagined}; best measured centre {counters.best_center_return:.1f} "
+        f"({unit} {counters.best_iteration}), what drrl eval runs; the last {counters.rows[-1]['center_return']:.1f}"
     )
     suggested = setup.entry.suggested or overridden_defaults(setup)
     if setup.entry.criteria() and not counters.best_center_criteria:
