@@ -65,6 +65,7 @@ class Drrl:
             eval_every=10**9,
             eval_episodes=1,
             observation_norm=False,
+            reward_shift=0.0,  # the env's own returns, as EvoTorch's search is told (Hopper's default takes 1 a step)
         )  # as EvoTorch
         self.setup = prepare(config)
         self.generation = 0
