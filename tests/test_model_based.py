@@ -448,6 +448,15 @@ def test_compare_spends_the_envs_own_budgets_unless_told(env, budgets, tmp_path,
         assert asked.pop()[:2] == expected
 
 
+def test_compare_spends_a_gymnasium_env_s_own_model_based_budget(tmp_path, monkeypatch):
+    asked = []
+    monkeypatch.setattr("drrl.cli_model_based.compare", lambda out, seeds, *budget_args, **_: asked.append(budget_args))
+    command = ["compare", "--env", "Pendulum-v1", "--method", MODEL_BASED, "--out", str(tmp_path)]
+    result = CliRunner().invoke(main, command)
+    assert result.exit_code == 0, result.output
+    assert asked.pop()[1] == 30  # Pendulum-v1's model-based budget, as drrl train Pendulum-v1 --model-based spends
+
+
 def test_compare_averages_seeds_on_a_common_grid_of_real_episodes(tmp_path, monkeypatch):
     import drrl.compare as module
 

@@ -13,7 +13,7 @@ from pydantic import ValidationError
 
 from drrl.cli_params import INTEGER
 from drrl.compare import DEFAULT_METHODS, METHODS, MODEL_BASED, PPO, compare, method_config
-from drrl.config import describe_errors, load_config_file
+from drrl.config import describe_errors, env_defaults, load_config_file
 from drrl.envs.batch import is_frames, make_batch_env
 from drrl.envs.registry import own_entry
 from drrl.models.kinds import MODEL_KINDS
@@ -169,8 +169,7 @@ def compare_command(env, seeds, budget, model_based_budget, methods, config_file
     if budget is None:
         budget = entry.defaults.get("budget", COMPARE_BUDGET) if entry else COMPARE_BUDGET
     if model_based_budget is None:
-        own = entry.model_based_defaults if entry else {}
-        model_based_budget = own.get("budget", MODEL_BASED_DEFAULTS["budget"])
+        model_based_budget = env_defaults(env, model_based=True).get("budget", MODEL_BASED_DEFAULTS["budget"])
     frames = observes_frames(env)
     methods = methods or ((MODEL_BASED,) if frames else DEFAULT_METHODS)
     if frames and set(methods) != {MODEL_BASED}:
