@@ -283,6 +283,5 @@ def test_the_search_is_told_returns_less_the_reward_shift_and_the_metrics_keep_t
         centres.append((start, setup.search.center))
         returns = [row["mean_return"] for row in counters.rows]
         assert min(returns) >= 8  # the env's own returns: every episode lasts at least 8 steps
-        setup.close()
     (start, shifted), (other_start, unshifted) = centres
     assert torch.equal(start, shifted) and not torch.equal(other_start, unshifted)
