@@ -438,11 +438,13 @@ def test_compare_without_stable_baselines3_says_what_to_install(tmp_path, monkey
     assert not (tmp_path / "cmp").exists()
 
 
-@pytest.mark.parametrize(("env", "budgets"), [("cartpole", (300, 20)), ("cartpole-swingup", (40_000, 30))])
+@pytest.mark.parametrize(
+    ("env", "budgets"), [("cartpole", (300, 20)), ("cartpole-swingup", (40_000, 30)), ("Pendulum-v1", (51_200, 30))]
+)
 def test_compare_spends_the_envs_own_budgets_unless_told(env, budgets, tmp_path, monkeypatch):
     asked = []
     monkeypatch.setattr("drrl.cli_model_based.compare", lambda out, seeds, *budget_args, **_: asked.append(budget_args))
-    for extra, expected in (([], budgets), (["--budget", "400", "--model-based-budget", "4"], (400, 4))):
+    for extra, expected in (([], budgets), (["--budget", "1024", "--model-based-budget", "4"], (1024, 4))):
         result = CliRunner().invoke(main, ["compare", "--env", env, "--out", str(tmp_path), *extra])
         assert result.exit_code == 0, result.output
         assert asked.pop()[:2] == expected

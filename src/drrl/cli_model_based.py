@@ -15,7 +15,6 @@ from drrl.cli_params import INTEGER
 from drrl.compare import DEFAULT_METHODS, METHODS, MODEL_BASED, PPO, compare, method_config
 from drrl.config import describe_errors, env_defaults, load_config_file
 from drrl.envs.batch import is_frames, make_batch_env
-from drrl.envs.registry import own_entry
 from drrl.models.kinds import MODEL_KINDS
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
@@ -165,9 +164,8 @@ def compare_command(env, seeds, budget, model_based_budget, methods, config_file
     except ValueError as error:
         raise click.UsageError(str(error)) from None
     settings["env"] = env
-    entry = own_entry(env)
     if budget is None:
-        budget = entry.defaults.get("budget", COMPARE_BUDGET) if entry else COMPARE_BUDGET
+        budget = env_defaults(env).get("budget", COMPARE_BUDGET)
     if model_based_budget is None:
         model_based_budget = env_defaults(env, model_based=True).get("budget", MODEL_BASED_DEFAULTS["budget"])
     frames = observes_frames(env)

@@ -25,8 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drrl.config import TrainConfig
-from drrl.envs.registry import own_entry
+from drrl.config import TrainConfig, env_defaults
 from drrl.train import train
 
 MODEL_FREE = {"REINFORCE-PGPE": "reinforce", "SyS-PGPE": "symmetric", "super-symmetric PGPE": "supersymmetric"}
@@ -68,10 +67,8 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
             {**base, "budget": budget, "seed": seed, "model_based": settings.get("model_based") or {}}
         )
     if method in ACTION_SPACE:
-        entry = own_entry(base.get("env", "cartpole"))
-        task = {
-            key: value for key, value in {**(entry.defaults if entry else {}), **base}.items() if key in TASK_SETTINGS
-        }
+        own = env_defaults(base.get("env", "cartpole"))
+        task = {key: value for key, value in {**own, **base}.items() if key in TASK_SETTINGS}
         return TrainConfig.model_validate(
             {"eval_share": 1.0, **task, "search": ACTION_SPACE[method], "budget": budget, "seed": seed}
         )
