@@ -2,6 +2,7 @@ import csv
 import dataclasses
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from pydantic import ValidationError
 import drrl.model_based
 from drrl.cli import main
 from drrl.compare import DEFAULT_METHODS, MODEL_BASED, PPO, compare, method_config
-from drrl.config import TrainConfig
+from drrl.config import TrainConfig, load_config_file
 from drrl.envs.registry import lookup
 from drrl.loop import better_center, run
 from drrl.model_based import fitting_settings, held_out_loss
@@ -189,6 +190,18 @@ def test_a_model_based_baxter_run_starts_from_the_linear_model_of_its_joints(tmp
     assert all(row["fit_updates"] == 0 for row in rows) and rows[-1]["real_steps"] <= 8 * 40
     assert all(row["imagined_steps"] <= row["imagined_episodes"] * 10 for row in rows)
     assert all(row["imagined_center_return"] <= -40 for row in rows)
+
+
+def test_the_linear_world_model_balances_the_thesis_cart_pole_within_six_real_episodes(tmp_path):
+    """configs/cartpole-model-based-linear.toml on a budget of 6 (BENCHMARKS.md: seeds 0-19 are balanced within 6):
+    a centre found in the least-squares model keeps the pole up in every measuring episode."""
+    path = Path(__file__).parents[1] / "configs" / "cartpole-model-based-linear.toml"
+    config = TrainConfig.model_validate({**load_config_file(path), "budget": 6, "seed": 0})
+    assert config.model_based is not None and config.model_based.model_kind == "linear"
+    rows = train(config, tmp_path / "run").rows
+    assert [row["real_episodes"] for row in rows] == [2, 4, 6]
+    assert all(row["fit_updates"] == 0 for row in rows)  # least squares, no gradient steps
+    assert any(row["balanced"] for row in rows)
 
 
 @pytest.mark.parametrize(
