@@ -256,6 +256,9 @@ def test_the_model_guard_warns_when_the_model_promises_far_more_than_reality_giv
     five = SimpleNamespace(config=SimpleNamespace(model_based=ModelBasedSettings(ensemble_size=5)))
     ModelGuard(say=said.append).row(five, counters, {"imagined_center_return": 654.0, "center_return": 4.6})
     assert "--ensemble" not in said[2] and "disagreement penalty" in said[2]  # only what the run does not do
+    linear = SimpleNamespace(config=SimpleNamespace(model_based=ModelBasedSettings(model_kind="linear")))
+    ModelGuard(say=said.append).row(linear, counters, {"imagined_center_return": 654.0, "center_return": 4.6})
+    assert "--model-kind rnn or lstm" in said[3] and "--model-hidden" not in said[3]  # a linear model has no width
 
 
 def test_measuring_takes_about_a_quarter_of_the_env_steps_by_default():

@@ -145,10 +145,15 @@ class ModelGuard(Subscriber):
 
 def remedies(settings: ModelBasedSettings | None) -> list[str]:
     """What helps a model that the search exploits, of what the run does not do already."""
-    ensemble, penalty = (1, 0.0) if settings is None else (settings.ensemble_size, settings.disagreement_penalty)
+    settings = settings or ModelBasedSettings.model_validate({})
+    larger = (
+        "a recurrent model (--model-kind rnn or lstm)"  # a linear model has no width to grow
+        if settings.model_kind == "linear"
+        else "a larger model (--model-hidden)"
+    )
     return [
-        *(["an ensemble (--ensemble 5)"] if ensemble == 1 else []),
-        *([] if penalty else ["a disagreement penalty (disagreement_penalty in [model_based])"]),
-        "a larger model (--model-hidden)",
+        *(["an ensemble (--ensemble 5)"] if settings.ensemble_size == 1 else []),
+        *([] if settings.disagreement_penalty else ["a disagreement penalty (disagreement_penalty in [model_based])"]),
+        larger,
         "or more real episodes per iteration (episodes_per_iteration in [model_based])",
     ]
