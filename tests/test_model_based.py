@@ -492,6 +492,9 @@ def test_compare_configs_keep_shared_settings_and_set_each_method():
     assert isinstance(method_config("SyS-PGPE", 1, 60, settings), TrainConfig)
     enac = method_config("eNAC", 1, 64, settings)  # the task's policy, the method's own search settings
     assert (enac.search, enac.policy, enac.popsize, enac.optimizer) == ("enac", "linear", 32, "clipup")
+    for method, sampler in (("SyS-PGPE", "symmetric"), ("REINFORCE-PGPE", "reinforce")):  # Pendulum's own is CMA-ES
+        pendulum = method_config(method, 1, 51_200, {"env": "Pendulum-v1"})
+        assert (pendulum.search, pendulum.sampler, pendulum.policy) == ("pgpe", sampler, "mlp:16")
 
 
 def test_compare_on_the_swing_up_gives_every_method_the_swing_ups_own_settings():

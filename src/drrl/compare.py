@@ -53,7 +53,8 @@ class Curve:
 def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainConfig:
     """The run config of ``method``: the shared ``settings`` (TrainConfig fields), then the method's own.
 
-    Model-free methods keep ``settings``' policy and search and measure their centre after every generation
+    The PGPE methods are PGPE with their sampler whatever search ``settings`` or the env's own settings name (Pendulum's
+    is CMA-ES), keep ``settings``' policy and search settings and measure their centre after every generation
     (``eval_share`` 1, unless ``settings`` say otherwise), for curves as fine as the model-based ones; REINFORCE needs
     no pairs and super-symmetric PGPE needs a popsize divisible by 4, so their popsize is rounded up to 8 where
     smaller. The action-space methods take the task's settings (``TASK_SETTINGS``) and their own defaults
@@ -72,7 +73,14 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
         return TrainConfig.model_validate(
             {"eval_share": 1.0, **task, "search": ACTION_SPACE[method], "budget": budget, "seed": seed}
         )
-    merged = {"eval_share": 1.0, **base, "sampler": MODEL_FREE[method], "budget": budget, "seed": seed}
+    merged = {
+        "eval_share": 1.0,
+        **base,
+        "search": "pgpe",
+        "sampler": MODEL_FREE[method],
+        "budget": budget,
+        "seed": seed,
+    }
     if merged["sampler"] == "supersymmetric" and merged.get("popsize", 8) % 4:
         merged["popsize"] = 8
     return TrainConfig.model_validate(merged)
