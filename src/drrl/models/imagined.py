@@ -158,6 +158,7 @@ class ImaginedEnv(VectorEnv):
         # env n's row (its member's) and place in that layout, and the state (A, G, ·) in it
         self._stepping = model
         self._slots = torch.zeros(len(model), 1, dtype=torch.long, device=self.device)
+        self._one_row = False  # one member steps every env in order: the layout is the envs' own, (1, N)
         self._row = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self._position = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self._state: list[torch.Tensor] = []
@@ -197,8 +198,7 @@ class ImaginedEnv(VectorEnv):
         prediction, self._state = self._stepping.step(
             self._grouped(self._observation), self._grouped(action), self._state, self._grouped(self._observed)
         )
-        own = (self._row, self._position)  # each env's prediction by its own member
-        previous, self._observation = self._observation, prediction.observations[own]
+        previous, self._observation = self._observation, self._own(prediction.observations)
         if self.complete_observation is not None:
             completed = self.complete_observation(previous.cpu().numpy(), self._observation.cpu().numpy())
             self._observation = torch.as_tensor(completed, dtype=previous.dtype, device=self.device)
@@ -206,8 +206,8 @@ class ImaginedEnv(VectorEnv):
         if self.known_reward is not None:
             reward, terminated = self.known_reward(self._observation.cpu().numpy(), self.elapsed_steps)
         else:
-            reward = prediction.rewards[own].cpu().numpy().astype(np.float64)
-            terminated = prediction.ends[own].cpu().numpy() > 0.5
+            reward = self._own(prediction.rewards).cpu().numpy().astype(np.float64)
+            terminated = self._own(prediction.ends).cpu().numpy() > 0.5
         if self.disagreement_penalty:
             reward = reward - self.disagreement_penalty * self.model.disagreement(prediction).cpu().numpy()
         truncated = self.elapsed_steps >= self.horizon
@@ -225,7 +225,7 @@ class ImaginedEnv(VectorEnv):
         if not self.memory:
             return self._observation.cpu().numpy()
         assert isinstance(self._stepping, WorldModel)
-        memory = self._stepping.memory(self._state)[self._row, self._position]
+        memory = self._own(self._stepping.memory(self._state))
         return torch.cat([self._observation, memory], dim=1).cpu().numpy()
 
     def _draw(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -250,7 +250,13 @@ class ImaginedEnv(VectorEnv):
 
     def _grouped(self, rows: torch.Tensor) -> torch.Tensor:
         """Per-env ``rows`` (N, …) in the members' layout (A, G, …); as they are if every member steps every env."""
-        return rows if self._every_member else _padded(rows)[self._slots]
+        if self._every_member:
+            return rows
+        return rows.unsqueeze(0) if self._one_row else _padded(rows)[self._slots]
+
+    def _own(self, predicted: torch.Tensor) -> torch.Tensor:
+        """(N, …) each env's row of ``predicted`` (A, G, …), its own member's (the layout's row 0 if there is one)."""
+        return predicted[0] if self._one_row else predicted[self._row, self._position]
 
     def _group(self) -> None:
         """Which envs each member steps: all of them for the disagreement penalty, else its own episodes, padded
@@ -260,8 +266,10 @@ class ImaginedEnv(VectorEnv):
             self._stepping, self._row = self.model, self._member
             self._slots = torch.arange(n, device=self.device).expand(members, n)
             self._position = torch.arange(n, device=self.device)
+            self._one_row = members == 1
             return
         drawn, self._row = torch.unique(self._member, sorted=True, return_inverse=True)
+        self._one_row = len(drawn) == 1  # then ``_slots`` is (1, N) and each env's position its own index
         self._stepping = self.model if len(drawn) == members else members_of(self.model, drawn)
         order = torch.argsort(self._row, stable=True)
         counts = torch.bincount(self._row)
