@@ -94,7 +94,7 @@ def test_the_swing_up_starts_from_its_own_settings_and_its_config_file_spells_ou
     model_based = TrainConfig(env="cartpole-swingup", model_based={})
     assert (model_based.policy, model_based.budget, model_based.episodes_per_candidate) == ("mlp:16", 30, 1)
     assert model_based.model_based is not None and model_based.model_based.model_kind == "lstm"
-    assert model_based.model_based.exploration_bonus == 1.0  # explorers chosen by the ensemble's disagreement
+    assert model_based.model_based.exploration_bonus == 3.0  # explorers chosen by the ensemble's disagreement
     smaller = TrainConfig(env="cartpole-swingup", model_based={"ensemble_size": 3})
     assert smaller.model_based is not None
     assert (smaller.model_based.ensemble_size, smaller.model_based.model_kind) == (3, "lstm")  # the table merges
