@@ -158,7 +158,6 @@ class ImaginedEnv(VectorEnv):
         # env n's row (its member's) and place in that layout, and the state (A, G, ·) in it
         self._stepping = model
         self._slots = torch.zeros(len(model), 1, dtype=torch.long, device=self.device)
-        self._one_row = False  # one member steps every env in order: the layout is the envs' own, (1, N)
         self._row = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self._position = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self._state: list[torch.Tensor] = []
@@ -254,6 +253,11 @@ class ImaginedEnv(VectorEnv):
             return rows
         return rows.unsqueeze(0) if self._one_row else _padded(rows)[self._slots]
 
+    @property
+    def _one_row(self) -> bool:
+        """One member steps every env, in order: the layout is the envs' own, (1, N)."""
+        return self._slots.shape[0] == 1
+
     def _own(self, predicted: torch.Tensor) -> torch.Tensor:
         """(N, …) each env's row of ``predicted`` (A, G, …), its own member's (the layout's row 0 if there is one)."""
         return predicted[0] if self._one_row else predicted[self._row, self._position]
@@ -266,10 +270,8 @@ class ImaginedEnv(VectorEnv):
             self._stepping, self._row = self.model, self._member
             self._slots = torch.arange(n, device=self.device).expand(members, n)
             self._position = torch.arange(n, device=self.device)
-            self._one_row = members == 1
             return
         drawn, self._row = torch.unique(self._member, sorted=True, return_inverse=True)
-        self._one_row = len(drawn) == 1  # then ``_slots`` is (1, N) and each env's position its own index
         self._stepping = self.model if len(drawn) == members else members_of(self.model, drawn)
         order = torch.argsort(self._row, stable=True)
         counts = torch.bincount(self._row)
