@@ -12,7 +12,7 @@ from pydantic import ValidationError
 from drrl import __version__
 from drrl.cli_model_based import compare_command, model_based_options, pop_model_options, with_model_based
 from drrl.cli_params import INTEGER
-from drrl.config import GYMNASIUM_DEFAULTS, TrainConfig, describe_errors, load_config_file
+from drrl.config import GYMNASIUM_DEFAULTS, TrainConfig, describe_errors, env_defaults, load_config_file
 from drrl.envs.batch import ENGINES, make_batch_env
 from drrl.envs.registry import aliases, lookup
 from drrl.loop import Counters, Setup, derive_seed, measure, run
@@ -233,8 +233,7 @@ def resume_run(
 def overridden_defaults(setup: Setup) -> dict:
     """The env's own defaults (model-free or model-based, as the run) that the run set otherwise, the model's own
     table aside: what to go back to after a miss."""
-    model_based = setup.config.model_based is not None
-    defaults = setup.entry.model_based_defaults if model_based else setup.entry.defaults
+    defaults = env_defaults(setup.config.env, model_based=setup.config.model_based is not None)
     return {
         name: value
         for name, value in defaults.items()
