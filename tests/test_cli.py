@@ -10,7 +10,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from drrl.cli import main
+from drrl.cli import advice_after_a_miss, main
 from drrl.config import TrainConfig
 from drrl.envs.gymnasium_tasks import DEFAULTS
 from drrl.runs import RunFolder
@@ -142,6 +142,18 @@ def test_a_model_based_run_that_misses_is_told_the_env_s_own_model_based_setting
     result, _ = train(tmp_path, "Pendulum-v1", "--model-based", "--budget", "2", "--generations", "1", "--quiet")
     assert result.exit_code == 0, result.output
     assert "the centre met none of Pendulum-v1's criteria (solved); settings that suit it: --budget 30" in result.output
+
+
+def test_a_run_with_the_env_s_own_settings_is_told_what_helps_a_run_of_its_kind():
+    advice = {}
+    for kind, model_based in (("model-free", None), ("model-based", {})):
+        setup = prepare(TrainConfig(env="cartpole", model_based=model_based, eval_episodes=2))
+        try:
+            advice[kind] = advice_after_a_miss(setup)
+        finally:
+            setup.close()
+    assert "--episodes-per-candidate" in advice["model-free"] and "--generations" not in advice["model-free"]
+    assert "--generations" in advice["model-based"] and "--episodes-per-candidate" not in advice["model-based"]
 
 
 def test_the_settings_measured_for_gymnasiums_tasks_are_their_defaults_and_valid():

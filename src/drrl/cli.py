@@ -230,6 +230,14 @@ def resume_run(
     run_and_report(setup, folder, attached, counters)
 
 
+GENERIC_ADVICE = {  # after a miss with the env's own settings, by the run's kind (``World.kind``)
+    "model-free": "try a larger --budget, more --episodes-per-candidate, another --sigma-init or --policy mlp:32",
+    "model-based": "try a larger --budget (real episodes), more --generations in the model, or another world model "
+    "(--model-kind, --model-hidden, --ensemble 5)",
+    "action-space": "try a larger --budget, another --center-lr (its step size) or --policy mlp:32",
+}
+
+
 def overridden_defaults(setup: Setup) -> dict:
     """The env's own defaults (model-free or model-based, as the run) that the run set otherwise, the model's own
     table aside: what to go back to after a miss."""
@@ -239,6 +247,18 @@ def overridden_defaults(setup: Setup) -> dict:
         for name, value in defaults.items()
         if name != "model_based" and getattr(setup.config, name) != value
     }
+
+
+def advice_after_a_miss(setup: Setup) -> str:
+    """What to try after a run whose centre met none of the task's criteria: the settings that suit the task (the
+    entry's own, else the env's defaults the run set otherwise), or with none, what most often helps a run of its
+    kind."""
+    suggested = setup.entry.suggested or overridden_defaults(setup)
+    if not suggested:
+        return GENERIC_ADVICE[setup.world.kind]
+    return "settings that suit it: " + " ".join(
+        f"--{name.replace('_', '-')} {value}" for name, value in suggested.items()
+    )
 
 
 def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Counters | None = None) -> None:
@@ -273,16 +293,10 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
         f"{counters.real_steps} real steps{imagined}; best measured centre {counters.best_center_return:.1f} "
         f"({unit} {counters.best_iteration}), what drrl eval runs; the last {counters.rows[-1]['center_return']:.1f}"
     )
-    suggested = setup.entry.suggested or overridden_defaults(setup)
     if setup.entry.criteria() and not counters.best_center_criteria:
-        options = " ".join(f"--{name.replace('_', '-')} {value}" for name, value in suggested.items())
-        advice = (
-            f"settings that suit it: {options}"
-            if suggested
-            else "try a larger --budget, more --episodes-per-candidate, another --sigma-init or --policy mlp:32"
-        )
         click.echo(
-            f"the centre met none of {setup.entry.env_id}'s criteria ({', '.join(setup.entry.criteria())}); {advice}"
+            f"the centre met none of {setup.entry.env_id}'s criteria ({', '.join(setup.entry.criteria())}); "
+            f"{advice_after_a_miss(setup)}"
         )
     click.echo(f"run folder: {out} (metrics.csv, learning_curve.png, checkpoint.safetensors)")
     click.echo(f"next: drrl eval {out}")
