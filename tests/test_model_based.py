@@ -155,6 +155,21 @@ def test_optimistic_explorers_are_chosen_in_the_model_and_their_imagined_episode
         assert optimistic["real_episodes"] == plain["real_episodes"]
 
 
+def test_with_one_real_episode_an_iteration_there_is_no_explorer_to_choose():
+    """Each later iteration then runs μ alone in reality: a bonus changes nothing, nor is anything imagined for it."""
+    rows = {}
+    for bonus in (0.0, 1.0):
+        model = {**QUICK_MODEL, "ensemble_size": 2, "exploration_bonus": bonus, "episodes_per_iteration": 1}
+        config = TrainConfig.model_validate(
+            dict(popsize=10, episodes_per_candidate=2, budget=4, eval_episodes=5, model_based=model)
+        )
+        rows[bonus] = [
+            {name: value for name, value in row.items() if not name.endswith("_time")} for row in train(config).rows
+        ]
+    assert [row["real_episodes"] for row in rows[1.0]] == [2, 3, 4]
+    assert rows[1.0] == rows[0.0]
+
+
 def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
     short = EpisodeBuffer(
         [Episode(np.zeros((9, 4), np.float32), np.zeros((8, 1), np.float32), np.zeros(8, np.float32), True)]

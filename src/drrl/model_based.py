@@ -141,7 +141,7 @@ class ModelBased(World):
         # 1. real episodes: the centre and explorers (only explorers before a model has informed μ)
         count = self.sizes[iteration - 1]
         params = exploring_policies(search, count, with_center=iteration > 1 or self.config.start_from is not None)
-        if self.settings.exploration_bonus and iteration > 1:
+        if self.settings.exploration_bonus and iteration > 1 and count > 1:  # explorers beside μ to choose
             params = torch.cat([params[:1], self.optimistic_explorers(search, count - 1, counters, iteration)])
         episodes, real = collect(
             self.policy,
