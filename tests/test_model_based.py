@@ -231,7 +231,7 @@ def test_model_based_runs_on_both_arms_start_from_more_episodes_and_candidates(e
 @pytest.mark.parametrize(
     "model_based, message",
     [
-        ({"model_kind": "gru"}, "model_based.model_kind: 'gru' is not one of: rnn, lstm, linear"),
+        ({"model_kind": "gru"}, "model_based.model_kind: 'gru' is not one of: rnn, lstm, mlp, linear"),
         ({"overshoot": -1}, "model_based.overshoot: Input should be greater than or equal to 0"),
         ({"hidden": [16, 0]}, "model_based.hidden: every layer width must be in [1, 65536]"),
         ({"ensemble_size": 0}, "model_based.ensemble_size"),

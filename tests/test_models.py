@@ -50,7 +50,9 @@ def linear_system_episodes(count, steps, seed):
 
 
 # ------------------------------------------------------------------------------------------------ the network
-@pytest.mark.parametrize("kind, hidden", [("rnn", (8,)), ("lstm", (8,)), ("rnn", (8, 6)), ("lstm", (8, 6))])
+@pytest.mark.parametrize(
+    "kind, hidden", [("rnn", (8,)), ("lstm", (8,)), ("rnn", (8, 6)), ("lstm", (8, 6)), ("mlp", (8, 6))]
+)
 def test_unfolding_and_overshooting_give_one_prediction_per_step(kind, hidden):
     model = WorldModel(4, 1, hidden, kind)
     observations, actions = random_inputs(batch=3, length=7)
@@ -58,7 +60,38 @@ def test_unfolding_and_overshooting_give_one_prediction_per_step(kind, hidden):
     assert prediction.observations.shape == (1, 3, 7, 4)  # members, windows, steps, observation
     assert prediction.rewards.shape == prediction.ends.shape == (1, 3, 7)
     assert ((prediction.ends > 0) & (prediction.ends < 1)).all()
-    assert len(model.initial_state(5)) == len(hidden) * (1 if kind == "rnn" else 2)
+    assert len(model.initial_state(5)) == len(hidden) * {"rnn": 1, "lstm": 2, "mlp": 0}[kind]
+
+
+def test_a_feed_forward_model_is_a_tanh_network_of_the_current_observation_and_action_alone():
+    """kind "mlp": each step is Linear → tanh → Linear → tanh → Linear on (normalised o_t, a_t), whatever came
+    before, its output the change (in units of the data's), the reward and the end's logit."""
+    torch.manual_seed(0)
+    model = WorldModel(4, 1, (8, 6), "mlp")
+    model.set_scales(
+        {
+            "observation_mean": torch.randn(1, 4),
+            "observation_scale": torch.rand(1, 4) + 0.5,
+            "change_scale": torch.rand(1, 4) + 0.5,
+        }
+    )
+    layers = [torch.nn.Linear(5, 8), torch.nn.Tanh(), torch.nn.Linear(8, 6), torch.nn.Tanh(), torch.nn.Linear(6, 6)]
+    weights = [*zip(model.input_weights, model.biases, strict=True), (model.readout_weight, model.readout_bias)]
+    with torch.no_grad():
+        for linear_layer, (w, b) in zip(layers[::2], weights, strict=True):
+            linear_layer.weight.copy_(w[0].T)
+            linear_layer.bias.copy_(b[0, 0])
+    network = torch.nn.Sequential(*layers)
+    observation, action = torch.randn(3, 4), torch.randn(3, 1)
+    y = network(torch.cat([(observation - model.observation_mean) / model.observation_scale, action], dim=-1))
+    for history in range(3):  # after 0, 1 or 2 other steps: no memory
+        state = model.initial_state(3)
+        for _ in range(history):
+            _, state = model.step(torch.randn(3, 4), torch.randn(3, 1), state)
+        prediction, state = model.step(observation, action, state)
+        assert state == []
+        torch.testing.assert_close(prediction.observations[0], observation + y[:, :4] * model.change_scale)
+        torch.testing.assert_close(prediction.ends[0], torch.sigmoid(y[:, 5]))
 
 
 @pytest.mark.parametrize("kind", ["rnn", "lstm"])
@@ -130,7 +163,7 @@ def test_zero_future_inputs_ignore_the_fed_back_observation():
     assert not torch.allclose(observed.observations, second.observations)
 
 
-@pytest.mark.parametrize("kind", ["rnn", "lstm"])
+@pytest.mark.parametrize("kind", ["rnn", "lstm", "mlp"])
 def test_the_model_learns_a_known_linear_system(kind):
     torch.manual_seed(0)
     training, held_out = (
@@ -285,7 +318,7 @@ def test_ensemble_members_disagree_only_when_their_weights_differ():
     torch.testing.assert_close(ensemble.disagreement(prediction), torch.zeros(5))
 
 
-@pytest.mark.parametrize("kind, hidden", [("rnn", (8,)), ("lstm", (8, 6))])
+@pytest.mark.parametrize("kind, hidden", [("rnn", (8,)), ("lstm", (8, 6)), ("mlp", (8, 6))])
 def test_each_member_of_the_batched_ensemble_computes_what_it_would_alone(kind, hidden):
     torch.manual_seed(0)
     ensemble = WorldModel(4, 1, hidden, kind, members=3)

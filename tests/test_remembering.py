@@ -80,8 +80,9 @@ def test_a_restarted_imagined_episode_forgets():
 def test_only_one_recurrent_model_has_a_memory_to_read():
     with pytest.raises(ValidationError, match="ensemble_size 1"):
         ModelBasedSettings(policy_memory=True, ensemble_size=3)
-    with pytest.raises(ValidationError, match="model_kind 'rnn' or 'lstm'"):
-        ModelBasedSettings(policy_memory=True, model_kind="linear")
+    for kind in ("linear", "mlp"):
+        with pytest.raises(ValidationError, match="model_kind 'rnn' or 'lstm'"):
+            ModelBasedSettings(policy_memory=True, model_kind=kind)
     with pytest.raises(ValueError, match="ensemble of 2"):
         Remembering(make_batch_env("cartpole", 1), model(members=2))
 

@@ -4,6 +4,7 @@ and how to fit it to real episodes.
 | kind | module | fitted by |
 | --- | --- | --- |
 | "rnn", "lstm" | ``drrl.models.recurrent`` (thesis 3.3–3.5) | back-propagation through time (``drrl.models.fit``) |
+| "mlp" | ``drrl.models.recurrent`` (its layers without the recurrence) | the same |
 | "linear" | ``drrl.models.linear`` (3.3, identity activation) | least squares (``drrl.models.linear``) |
 """
 
@@ -17,10 +18,9 @@ from drrl.models.base import LearnedModel
 from drrl.models.data import EpisodeBuffer
 from drrl.models.fit import FitReport, FitSettings, fit
 from drrl.models.linear import LinearModel, fit_linear
-from drrl.models.recurrent import MODEL_KINDS as RECURRENT_KINDS
-from drrl.models.recurrent import WorldModel
+from drrl.models.recurrent import NETWORK_KINDS, WorldModel
 
-MODEL_KINDS = (*RECURRENT_KINDS, "linear")
+MODEL_KINDS = (*NETWORK_KINDS, "linear")
 
 
 def make_model(

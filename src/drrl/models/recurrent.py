@@ -38,6 +38,14 @@ Departures from the thesis, and why
       of one sign. ``unfolding_loss`` sums the *squared* error over the unfolded steps.
     * The end-of-episode head is trained by the same squared error on its probability (the Brier score).
 
+A feed-forward kind (``kind="mlp"``, beyond the thesis): the same layers with B = 0 and no state, so each step
+reads o_t and a_t alone, the one-step networks of model-based RL since PETS (Chua et al. 2018). Where the observation
+is the whole state (the swing-up's (s, ṡ, sin θ, cos θ, θ̇)) it needs no memory, and a step costs a matrix product
+and a tanh per layer where the LSTM's costs four gates; it is fitted as the others, on unfolded windows with
+overshooting, so it is trained on the multi-step predictions imagination makes. Measured on the swing-up and Pendulum,
+it is faster and learns less from the same real episodes than the recurrent kinds (BENCHMARKS.md); partially
+observed tasks need those.
+
 An ensemble of K members (beyond the thesis, against the "curse of model uncertainty" it names in 2.3) is one
 network with a leading member dimension on every weight, stepped by batched matrix products: K small models cost
 about what one does, where a loop over them would pay K times the per-step overhead that dominates at these sizes.
@@ -58,10 +66,14 @@ from torch import nn
 from drrl.models.base import Prediction, per_member, spread
 from drrl.policies.recurrent import elman_cell
 
-MODEL_KINDS = ("rnn", "lstm")
+MODEL_KINDS = ("rnn", "lstm")  # the recurrent kinds: a memory the policy can read (drrl.models.remembering)
+NETWORK_KINDS = (*MODEL_KINDS, "mlp")  # "mlp": the same layers without the recurrence
 FUTURE_INPUTS = ("predictions", "zeros")
-GATES = {"rnn": 1, "lstm": 4}  # blocks of pre-activations per layer: the state, or the LSTM's i, f, g, o
-Layer = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # a layer's input weights W, recurrent weights B, bias b
+GATES = {"rnn": 1, "lstm": 4, "mlp": 1}  # blocks of pre-activations per layer: the state, or the LSTM's i, f, g, o
+MEMORIES = {"rnn": 1, "lstm": 2, "mlp": 0}  # state tensors per layer: s, or the LSTM's h and c; none
+Layer = tuple[
+    torch.Tensor, torch.Tensor | None, torch.Tensor
+]  # input weights W, recurrent weights B (None: no memory), bias b
 
 
 def _lstm_cell(
@@ -74,17 +86,23 @@ def _lstm_cell(
     return hidden, (hidden, cell)
 
 
-CELLS: dict[str, Callable] = {"rnn": elman_cell, "lstm": _lstm_cell}
+def _feed_forward_cell(pre_activation: torch.Tensor, memory: tuple) -> tuple[torch.Tensor, tuple]:
+    """A layer without memory: tanh of its pre-activation."""
+    return torch.tanh(pre_activation), ()
+
+
+CELLS: dict[str, Callable] = {"rnn": elman_cell, "lstm": _lstm_cell, "mlp": _feed_forward_cell}
 
 
 class WorldModel(nn.Module):
-    """K stacked state-space RNNs (``kind="rnn"``, 3.4–3.11) or LSTMs (``kind="lstm"``, 3.5.2), stepped as one.
+    """K stacked state-space RNNs (``kind="rnn"``, 3.4–3.11), LSTMs (``kind="lstm"``, 3.5.2) or feed-forward tanh
+    networks (``kind="mlp"``), stepped as one.
 
     Args:
         observation_size: the size of o_t.
         action_size: the size of a_t.
         hidden: the width of each stacked layer, e.g. (64,) or (64, 64).
-        kind: "rnn" (s_t = tanh(W x_t + B s_{t−1} + b)) or "lstm".
+        kind: "rnn" (s_t = tanh(W x_t + B s_{t−1} + b)), "lstm", or "mlp" (s_t = tanh(W x_t + b), no memory).
         future_inputs: what the overshooting part reads, "predictions" (dynamical consistency) or "zeros".
         members: K, the ensemble's size; every output has a leading dimension K.
     """
@@ -106,8 +124,8 @@ class WorldModel(nn.Module):
         members: int = 1,
     ):
         super().__init__()
-        if kind not in MODEL_KINDS:
-            raise ValueError(f"unknown model kind {kind!r}; choose one of: {', '.join(MODEL_KINDS)}")
+        if kind not in NETWORK_KINDS:
+            raise ValueError(f"unknown model kind {kind!r}; choose one of: {', '.join(NETWORK_KINDS)}")
         if future_inputs not in FUTURE_INPUTS:
             raise ValueError(f"unknown future_inputs {future_inputs!r}; choose one of: {', '.join(FUTURE_INPUTS)}")
         hidden = tuple(int(width) for width in hidden)
@@ -123,7 +141,9 @@ class WorldModel(nn.Module):
         self.input_weights = nn.ParameterList(
             _uniform(members, fan_in, gates * width, width) for fan_in, width in itertools.pairwise(widths)
         )
-        self.recurrent_weights = nn.ParameterList(_uniform(members, width, gates * width, width) for width in hidden)
+        self.recurrent_weights = nn.ParameterList(
+            _uniform(members, width, gates * width, width) for width in hidden if MEMORIES[kind]
+        )
         self.biases = nn.ParameterList(_uniform(members, 1, gates * width, width) for width in hidden)
         self.readout_weight = _uniform(members, hidden[-1], observation_size + 2, hidden[-1])  # change, reward, end
         self.readout_bias = _uniform(members, 1, observation_size + 2, hidden[-1])
@@ -158,8 +178,9 @@ class WorldModel(nn.Module):
             getattr(self, name).copy_(value)
 
     def initial_state(self, batch: int) -> list[torch.Tensor]:
-        """Zero hidden states (K, batch, width): [s¹, s², …] for "rnn", [h¹, c¹, h², c², …] for "lstm"."""
-        per_layer = 1 if self.kind == "rnn" else 2
+        """Zero hidden states (K, batch, width): [s¹, s², …] for "rnn", [h¹, c¹, h², c², …] for "lstm", [] for
+        "mlp"."""
+        per_layer = MEMORIES[self.kind]
         return [
             torch.zeros(self.members, batch, width, device=self.device)
             for width in self.hidden
@@ -172,19 +193,24 @@ class WorldModel(nn.Module):
         return state[-1] if self.kind == "rnn" else state[-2]
 
     def _layers(self) -> list[Layer]:
-        """(W, B, b) of every layer, gathered once for a whole unfolding (a ParameterList's lookups are slow)."""
-        return list(zip(self.input_weights, self.recurrent_weights, self.biases, strict=True))
+        """(W, B, b) of every layer, gathered once for a whole unfolding (a ParameterList's lookups are slow); B is
+        None in a layer without memory."""
+        recurrent = list(self.recurrent_weights) if MEMORIES[self.kind] else [None] * len(self.hidden)
+        return list(zip(self.input_weights, recurrent, self.biases, strict=True))
 
     def _advance(
         self, x: torch.Tensor, state: list[torch.Tensor], layers: list[Layer]
     ) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """The stacked ``layers`` on network inputs x (K, B, ·) = (normalised o_t, a_t): read-outs y_t (3.7), new
         state. Each layer's cell is the recurrent policies' own (``drrl.policies.recurrent``)."""
-        cell, memories = CELLS[self.kind], 1 if self.kind == "rnn" else 2
+        cell, memories = CELLS[self.kind], MEMORIES[self.kind]
         new_state = []
         for i, (w, b, bias) in enumerate(layers):
             memory = tuple(state[memories * i : memories * (i + 1)])
-            x, memory = cell(torch.baddbmm(torch.baddbmm(bias, x, w), memory[0], b), memory)
+            pre_activation = torch.baddbmm(bias, x, w)
+            if b is not None:
+                pre_activation = torch.baddbmm(pre_activation, memory[0], b)
+            x, memory = cell(pre_activation, memory)
             new_state += memory
         return torch.baddbmm(self.readout_bias, x, self.readout_weight), new_state
 
