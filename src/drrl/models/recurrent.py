@@ -71,9 +71,8 @@ NETWORK_KINDS = (*MODEL_KINDS, "mlp")  # "mlp": the same layers without the recu
 FUTURE_INPUTS = ("predictions", "zeros")
 GATES = {"rnn": 1, "lstm": 4, "mlp": 1}  # blocks of pre-activations per layer: the state, or the LSTM's i, f, g, o
 MEMORIES = {"rnn": 1, "lstm": 2, "mlp": 0}  # state tensors per layer: s, or the LSTM's h and c; none
-Layer = tuple[
-    torch.Tensor, torch.Tensor | None, torch.Tensor
-]  # input weights W, recurrent weights B (None: no memory), bias b
+# a layer's input weights W, recurrent weights B (None in a layer without memory), bias b
+Layer = tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]
 
 
 def _lstm_cell(
@@ -195,14 +194,14 @@ class WorldModel(nn.Module):
     def _layers(self) -> list[Layer]:
         """(W, B, b) of every layer, gathered once for a whole unfolding (a ParameterList's lookups are slow); B is
         None in a layer without memory."""
-        recurrent = list(self.recurrent_weights) if MEMORIES[self.kind] else [None] * len(self.hidden)
+        recurrent = list(self.recurrent_weights) or [None] * len(self.hidden)
         return list(zip(self.input_weights, recurrent, self.biases, strict=True))
 
     def _advance(
         self, x: torch.Tensor, state: list[torch.Tensor], layers: list[Layer]
     ) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """The stacked ``layers`` on network inputs x (K, B, ·) = (normalised o_t, a_t): read-outs y_t (3.7), new
-        state. Each layer's cell is the recurrent policies' own (``drrl.policies.recurrent``)."""
+        state. Each recurrent layer's cell is the recurrent policies' own (``drrl.policies.recurrent``)."""
         cell, memories = CELLS[self.kind], MEMORIES[self.kind]
         new_state = []
         for i, (w, b, bias) in enumerate(layers):
