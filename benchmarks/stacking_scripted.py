@@ -31,7 +31,7 @@ def run(options: dict, episodes: int) -> np.ndarray:
     """The control step at which each episode's stack stood (−1: never)."""
     env = BaxterStackVectorEnv(episodes, controller="end_point", **options)
     observations, _ = env.reset(seed=list(range(episodes)))
-    stacker = ScriptedStacker(env.task, episodes)
+    stacker = ScriptedStacker(env.task)
     stood, over = np.full(episodes, -1), np.zeros(episodes, dtype=bool)
     for step in range(1, HORIZON + 1):
         observations, _, terminated, truncated, info = env.step(stacker.act(observations))
@@ -46,7 +46,7 @@ def record(options: dict, path: str, every: int = 10) -> None:
     """One episode (seed 0), a frame every ``every`` control steps, written to ``path``."""
     env = BaxterStackEnv(render_mode="rgb_array", controller="end_point", width=256, height=192, **options)
     observation, _ = env.reset(seed=0)
-    stacker, frames = ScriptedStacker(env.task, 1), [env.render()]
+    stacker, frames = ScriptedStacker(env.task), [env.render()]
     for step in range(1, HORIZON + 1):
         observation, _, terminated, truncated, _ = env.step(stacker.act(observation[None])[0])
         if step % every == 0 or terminated or truncated:

@@ -136,7 +136,7 @@ def _pick_and_place(env: BaxterStackVectorEnv, steps: int = HORIZON):
     """The scripted stacker's episodes: each env's return, the step its stack stood and whether it failed."""
     n = env.num_envs
     observations, _ = env.reset(seed=list(range(n)))
-    stacker = ScriptedStacker(env.task, n)
+    stacker = ScriptedStacker(env.task)
     returns, stacked_at, failed = np.zeros(n), np.full(n, -1), np.zeros(n, bool)
     for t in range(steps):
         observations, reward, terminated, _, info = env.step(stacker.act(observations))
@@ -250,4 +250,4 @@ def test_bad_stacking_options_are_refused_in_one_line(options, message):
 
 def test_the_scripted_stacker_needs_end_point_actions():
     with pytest.raises(ValueError, match="end-point actions"):
-        ScriptedStacker(StackTask(), 1)
+        ScriptedStacker(StackTask())

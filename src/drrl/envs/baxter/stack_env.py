@@ -107,7 +107,7 @@ def demonstrations(arms: tuple[str, ...], blocks: int, positions: str) -> tuple[
     steps, state) and each episode's length up to the step its stack stood (episodes,). Recorded once a process."""
     env = BaxterStackVectorEnv(DEMONSTRATIONS, arms=arms, blocks=blocks, positions=positions, controller="end_point")
     observations, _ = env.reset(seed=list(range(DEMONSTRATIONS)))
-    stacker, states = ScriptedStacker(env.task, DEMONSTRATIONS), []
+    stacker, states = ScriptedStacker(env.task), []
     lengths = np.zeros(DEMONSTRATIONS, dtype=np.int64)
     for step in range(1, HORIZON + 1):
         states.append(env.robot.states())
