@@ -109,6 +109,18 @@ def main(ctx: click.Context, debug: bool) -> None:
 @setting("seed", INTEGER, "random seed")
 @setting("checkpoint_every", INTEGER, "generations between checkpoints")
 @setting(
+    "demonstrations",
+    INTEGER,
+    "real episodes of the env's scripted demonstrator (the stacking tasks' with end-point actions) that the first "
+    "centre is cloned from, counted in the budget",
+)
+@setting(
+    "demonstration_rounds",
+    INTEGER,
+    "rounds the demonstrations are recorded in, each after the first driven by the clone so far",
+)
+@setting("demonstration_noise", float, "std of the noise on the demonstrator's raw actions while recording")
+@setting(
     "start_from",
     click.Path(exists=True, file_okay=False),
     "a run folder whose best measured policy (and world model) this run starts from, e.g. one trained in the "

@@ -161,6 +161,22 @@ class TrainConfig(BaseModel):
     )
     model_based: ModelBasedSettings | None = Field(None, description="set: model-based PGPE (drrl.model_based)")
     env_schedule: EnvSchedule | None = Field(None, description="a curriculum on one env option (model-free)")
+    demonstrations: int = Field(
+        0,
+        ge=0,
+        le=100_000,
+        description="real episodes of the env's scripted demonstrator that the first centre is cloned from "
+        "(drrl.cloning), counted in the budget",
+    )
+    demonstration_rounds: int = Field(
+        4,
+        ge=1,
+        le=1000,
+        description="rounds the demonstrations are recorded in, each after the first driven by the clone so far",
+    )
+    demonstration_noise: float = Field(
+        0.1, ge=0, le=10, description="std of the noise added to the demonstrator's raw actions while recording"
+    )
     start_from: str | None = Field(
         None,
         max_length=4096,
@@ -229,11 +245,24 @@ class TrainConfig(BaseModel):
             raise ValueError(
                 "start_from gives a policy that reads raw observations; set observation_norm to false with it"
             )
+        if self.demonstrations and (self.model_based is not None or self.search in POLICY_GRADIENTS):
+            raise ValueError("demonstrations start a model-free parameter search (pgpe, cmaes) from their clone")
+        if self.demonstrations and self.demonstrations < self.demonstration_rounds:
+            raise ValueError(
+                f"demonstrations ({self.demonstrations}) must be at least one episode a round "
+                f"(demonstration_rounds {self.demonstration_rounds})"
+            )
+        if self.demonstrations and (self.start_from is not None or self.observation_norm):
+            raise ValueError(
+                "demonstrations give the first centre, a policy that reads raw observations: not with start_from "
+                "or observation_norm"
+            )
         if self.model_based is not None and self.env_schedule is not None:
             raise ValueError("env_schedule is for model-free runs; a model-based run learns the env as registered")
-        if self.model_based is None and self.budget < self.episodes_per_generation:
+        if self.model_based is None and self.generations < 1:
+            demonstrations = f" less {self.demonstrations} demonstrations" if self.demonstrations else ""
             raise ValueError(
-                f"budget of {self.budget} real episodes is smaller than one generation "
+                f"budget of {self.budget} real episodes{demonstrations} is smaller than one generation "
                 f"({self.popsize} candidates × {self.episodes_per_candidate} episode(s) each)"
             )
         return self
@@ -244,7 +273,7 @@ class TrainConfig(BaseModel):
 
     @property
     def generations(self) -> int:
-        return self.budget // self.episodes_per_generation
+        return (self.budget - self.demonstrations) // self.episodes_per_generation
 
 
 def load_config_file(path: Path) -> dict:

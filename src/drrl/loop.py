@@ -36,7 +36,7 @@ from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, evaluate
 from drrl.search.base import Search
 
-TRAINING, MEASURING = 0, 1  # independent random streams for training and measuring episodes
+TRAINING, MEASURING, DEMONSTRATING = 0, 1, 2  # independent random streams for training, measuring, demonstrations
 COUNTS = (
     "iteration",
     "generations",
@@ -169,6 +169,7 @@ class Setup:
     search: Learner
     world: World
     eval_env: VectorEnv  # measures the centre policy, always here
+    spent: tuple[int, int] = (0, 0)  # real training episodes and steps spent before the first step (demonstrations)
 
     def close(self) -> None:
         self.world.close()
@@ -194,7 +195,8 @@ class Subscriber:
 
 def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters | None = None) -> Counters:
     """Step ``setup.world`` to the end of its budget; ``counters`` (from ``restore``) continue a run."""
-    counters = Counters() if counters is None else counters
+    if counters is None:
+        counters = Counters(real_episodes=setup.spent[0], real_steps=setup.spent[1])
     snapshot = checkpoint_state(setup, counters)
     for subscriber in subscribers:
         subscriber.started(setup, counters, snapshot)

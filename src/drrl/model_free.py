@@ -49,7 +49,7 @@ class ModelFree(World):
 
     @property
     def real_budget(self) -> int:
-        return self.config.generations * self.config.episodes_per_generation
+        return self.config.demonstrations + self.config.generations * self.config.episodes_per_generation
 
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         scheduled = self.follow_schedule(counters)

@@ -19,10 +19,22 @@ from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
 from drrl.action_space import ActionSpace
+from drrl.cloning import check_clonable, cloned
 from drrl.config import TrainConfig
 from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, is_frames, make_batch_env, observation_size
-from drrl.envs.registry import is_own, lookup
-from drrl.loop import Counters, Learner, Setup, Subscriber, World, check_checkpoint, restore, run
+from drrl.envs.registry import EnvEntry, is_own, lookup
+from drrl.loop import (
+    DEMONSTRATING,
+    Counters,
+    Learner,
+    Setup,
+    Subscriber,
+    World,
+    check_checkpoint,
+    derive_seed,
+    restore,
+    run,
+)
 from drrl.model_based import ModelBased, build_model, frame_autoencoder, reading
 from drrl.model_free import ModelFree
 from drrl.models.base import load_weights
@@ -132,7 +144,11 @@ def resolved(config: TrainConfig, env_id: str) -> TrainConfig:
     return config.model_copy(
         update={
             "engine": choose_engine(env_id, config.engine, with_options=config.env_schedule is not None),
-            "observation_norm": (not is_own(env_id) and searching and not config.start_from) if norm is None else norm,
+            "observation_norm": (
+                (not is_own(env_id) and searching and not config.start_from and not config.demonstrations)
+                if norm is None
+                else norm
+            ),
         }
     )
 
@@ -146,7 +162,8 @@ def prepare(
 ) -> Setup:
     """Build envs, policy, search, world and backend; bad names, settings or unsupported spaces raise ValueError
     here, before any work. A new run (not ``resuming``) with ``config.start_from`` starts from that run's policy and
-    world model (``transferred``)."""
+    world model (``transferred``), one with ``config.demonstrations`` from the clone of the env's demonstrator
+    (``demonstrated_start``)."""
     entry = lookup(config.env)
     if config.search in POLICY_GRADIENTS and backend != "local":
         raise ValueError(f"search {config.search} runs its episodes here; use the local backend (--backend local)")
@@ -159,9 +176,13 @@ def prepare(
         discrete = isinstance(probe.single_action_space, spaces.Discrete)
         check_memory(config, policy)
         spaces_here = (probe.single_observation_space, probe.single_action_space)
+        if config.demonstrations:
+            check_clonable(policy, entry.demonstrator, entry.env_id)
         start = transferred(config, policy, spaces_here) if config.start_from and not resuming else Transfer()
     finally:
         probe.close()
+    if config.demonstrations and not resuming:
+        start = demonstrated_start(config, entry, policy)
     eval_env = make_batch_env(entry.env_id, config.eval_episodes, config.engine)
     try:
         search = build_search(config, policy, discrete, start.center)
@@ -188,7 +209,7 @@ def prepare(
         evaluator.close()
         eval_env.close()
         raise
-    return Setup(config, entry, policy, search, world, world.measured_on(eval_env))
+    return Setup(config, entry, policy, search, world, world.measured_on(eval_env), start.spent)
 
 
 def prepare_resume(
@@ -223,6 +244,7 @@ class Transfer:
 
     center: torch.Tensor | None = None
     model: dict[str, torch.Tensor] | None = None
+    spent: tuple[int, int] = (0, 0)  # real episodes and steps it took here (demonstrations)
 
 
 def transferred(config: TrainConfig, policy: Policy, spaces_here: SpacePair) -> Transfer:
@@ -247,6 +269,25 @@ def transferred(config: TrainConfig, policy: Policy, spaces_here: SpacePair) -> 
     if source.model_based and config.model_based and same_model(source.model_based, config.model_based):
         model = checkpoint["world"]["model"]
     return Transfer(trained_center(checkpoint, policy), model)
+
+
+def demonstrated_start(config: TrainConfig, entry: EnvEntry, policy: Policy) -> Transfer:
+    """The policy cloned from ``config.demonstrations`` real episodes of the env's demonstrator (``drrl.cloning``),
+    and the real episodes and steps they took."""
+    assert entry.demonstrator is not None  # check_clonable
+    center, recorded = cloned(
+        policy,
+        entry.demonstrator,
+        entry.env_id,
+        config.demonstrations,
+        config.demonstration_rounds,
+        derive_seed(config.seed, 0, DEMONSTRATING),
+        config.demonstration_noise,
+        config.engine,
+        config.max_steps,
+        config.device,
+    )
+    return Transfer(center, spent=(recorded.episodes, recorded.steps))
 
 
 def same_model(a: ModelBasedSettings, b: ModelBasedSettings) -> bool:

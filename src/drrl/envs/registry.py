@@ -4,7 +4,8 @@ An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what
 ``drrl eval`` explains it, the task's reward and end in closed form of the observation when there is one (imagined
 episodes then use it instead of a learned reward) and the observation entries that follow in closed form from the
 others (imagined observations are completed by it), the reward of a step that ends the episode where the step alone
-decides it (imagined episodes with a learned end then pay it), and settings that suit the task. Each environment
+decides it (imagined episodes with a learned end then pay it), a scripted demonstrator where the task has one (a
+run's first centre can be cloned from its episodes), and settings that suit the task. Each environment
 registers its entry from its own module (``register``), which also registers it with Gymnasium; a family of ids made
 from others, such as ``Pixels/ID`` for any ``ID``, registers each member when it is first named (``register_family``).
 An environment that drrl does not know is any registered Gymnasium id; its entry has the verdict "solved" where
@@ -33,6 +34,8 @@ Explanation = Callable[[torch.Tensor, torch.Tensor], str]
 RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 # 1-based steps (N,) at which episodes end by termination -> the rewards of those steps (N,)
 EndReward = Callable[[np.ndarray], np.ndarray]
+# observations (N, o) -> the env's actions (N, a): a scripted policy without memory (drrl.cloning copies its episodes)
+Demonstrator = Callable[[np.ndarray], np.ndarray]
 # (observations (N, o), predicted next observations (N, o)) -> the next ones with the entries that follow from the
 # rest recomputed
 ObservationFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -49,6 +52,7 @@ class EnvEntry:
     reward: RewardFunction | None = None
     complete_observation: ObservationFunction | None = None  # e.g. Baxter's end-point offsets from its joint angles
     end_reward: EndReward | None = None  # a terminating step's reward where only the step decides it (5.8's failure)
+    demonstrator: Demonstrator | None = None  # a scripted policy a run's first centre can be cloned from
     suggested: dict = field(default_factory=dict)  # TrainConfig settings that suit the task
     defaults: dict = field(default_factory=dict)  # TrainConfig settings a model-free run on the task starts from
     model_based_defaults: dict = field(default_factory=dict)  # the same for a model-based run, with its table

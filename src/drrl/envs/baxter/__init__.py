@@ -11,6 +11,7 @@ the wood stacking the thesis announces, with Baxter's grippers.
 | ``grasping`` | the stacking scene: Rethink's electric grippers on the hands, pine blocks, contact sensors |
 | ``stacking`` | the stacking task: block positions, stack rule, rewards in 5.10's form and staged, the controllers |
 | ``stack_env`` | the native ``BaxterStackVectorEnv`` and the single ``BaxterStackEnv`` |
+| ``scripted`` | the scripted stacker, rules on the observation: the end-point tasks' demonstrator (``drrl.cloning``) |
 | ``standin`` | a stand-in for the real robot: masses and damping off, delayed and lagging commands, noisy sensors |
 | ``render`` | headless MuJoCo frames of the scene |
 
@@ -23,7 +24,8 @@ from functools import partial
 from typing import Any
 
 from drrl.envs.baxter.model import SIDES
-from drrl.envs.baxter.stacking import explain_stack, stack_verdict
+from drrl.envs.baxter.scripted import ScriptedStacker
+from drrl.envs.baxter.stacking import StackTask, explain_stack, stack_verdict
 from drrl.envs.baxter.task import STILLNESS, TIE_BREAK, ReachTask, explain_reach, reach_verdict
 from drrl.envs.registry import EnvEntry, register
 
@@ -99,6 +101,19 @@ for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
         _options,
     )
 
+# A model-free run on a task the scripted stacker does starts from its clone (drrl.cloning): 64 real episodes in two
+# rounds, a tanh network of 64 × 64, then PGPE with perturbations small enough that most candidates still stack
+# (BENCHMARKS.md, learning to stack).
+CLONED = {
+    "policy": "mlp:64,64",
+    "demonstrations": 64,
+    "demonstration_rounds": 2,
+    "popsize": 8,
+    "budget": 128,
+    "sigma_init": 0.002,
+    "center_lr": 0.002,
+    "eval_episodes": 20,
+}
 STACKING: dict[str, tuple[str, dict[str, Any], bool]] = {  # alias, Gymnasium id, task options, thesis reward
     "baxter-stack": ("drrl/BaxterStack-v0", {}, True),  # a stack of two, fixed positions: the thesis's setting
     "baxter-stack-random": ("drrl/BaxterStackRandom-v0", {"positions": "random"}, True),
@@ -107,6 +122,17 @@ STACKING: dict[str, tuple[str, dict[str, Any], bool]] = {  # alias, Gymnasium id
     "baxter-stack-dense": ("drrl/BaxterStackDense-v0", {"reward": "dense"}, False),
     # the grip point's velocity through the arm's Jacobian instead of joint velocities (``stacking``)
     "baxter-stack-end-point": ("drrl/BaxterStackEndPoint-v0", {"controller": "end_point"}, True),
+    "baxter-stack-random-end-point": (
+        "drrl/BaxterStackRandomEndPoint-v0",
+        {"positions": "random", "controller": "end_point"},
+        True,
+    ),
+    "baxter-stack3-end-point": ("drrl/BaxterStack3EndPoint-v0", {"blocks": 3, "controller": "end_point"}, True),
+    "baxter-stack3-random-end-point": (
+        "drrl/BaxterStack3RandomEndPoint-v0",
+        {"blocks": 3, "positions": "random", "controller": "end_point"},
+        True,
+    ),
     "baxter-stack-dense-end-point": (
         "drrl/BaxterStackDenseEndPoint-v0",
         {"reward": "dense", "controller": "end_point"},
@@ -116,8 +142,12 @@ STACKING: dict[str, tuple[str, dict[str, Any], bool]] = {  # alias, Gymnasium id
 
 for _alias, (_env_id, _options, _thesis_reward) in STACKING.items():
     _judged = {"verdict": stack_verdict, "explain": explain_stack} if _thesis_reward else {}
+    _scripted = _options.get("controller") == "end_point"  # the scripted stacker acts through end-point actions
+    _demonstrated = (
+        {"demonstrator": ScriptedStacker(StackTask(**_options)).act, "defaults": CLONED} if _scripted else {}
+    )
     register(
-        EnvEntry(_env_id, _alias, **_judged),
+        EnvEntry(_env_id, _alias, **_demonstrated, **_judged),
         "drrl.envs.baxter.stack_env:BaxterStackEnv",
         "drrl.envs.baxter.stack_env:BaxterStackVectorEnv",
         _options,
