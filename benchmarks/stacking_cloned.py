@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 
 from drrl.config import TrainConfig
-from drrl.envs.baxter.stacking import stacked_fraction
 from drrl.envs.batch import make_batch_env
+from drrl.envs.baxter.stacking import stacked_fraction
 from drrl.loop import derive_seed, measure
 from drrl.runs import RunFolder
 from drrl.train import build_policy, open_run, train, trained_center
@@ -62,8 +62,10 @@ def main() -> None:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             row = run_seed(args.env, seed, args.settings, Path(scratch) / f"seed{seed}")
             rows.append(row)
-            print(f"| {seed} | {row['stacked']:.0%} | {row['real_episodes']} | {row['real_steps']:,} | {row['wall_s']} |",
-                  flush=True)
+            print(
+                f"| {seed} | {row['stacked']:.0%} | {row['real_episodes']} | {row['real_steps']:,} | {row['wall_s']} |",
+                flush=True,
+            )
     median = {key: statistics.median(row[key] for row in rows) for key in ("stacked", "real_episodes", "wall_s")}
     print(f"median: stood {median['stacked']:.0%}, {median['real_episodes']} real episodes, {median['wall_s']} s")
 

@@ -42,7 +42,7 @@ def test_demonstrations_note_the_demonstrators_actions_and_count_every_step():
 @pytest.mark.parametrize("spec, bias", [("linear", 0.4), ("linear:nobias", 0.0)])
 def test_the_clone_of_a_linear_demonstrator_is_that_linear_policy(spec, bias):
     rng = np.random.default_rng(0)
-    observations = (rng.normal(size=(5000, 4)) * [0.1, 1.0, 3.0, 0.5] + (bias != 0) * np.array([2, -1, 0, 5]))
+    observations = rng.normal(size=(5000, 4)) * [0.1, 1.0, 3.0, 0.5] + (bias != 0) * np.array([2, -1, 0, 5])
     observations = observations.astype(np.float32)
     record = Demonstrations(observations, (observations @ GAINS + bias)[:, None], 10, 5000, 0.0)
     policy = make_policy(spec, 4, 1)

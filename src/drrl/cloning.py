@@ -93,16 +93,21 @@ def demonstrated(
 def check_clonable(policy: Policy, demonstrator: Demonstrator | None, env_id: str) -> None:
     """Refuse, in one line, an env without a demonstrator or a policy that is not feed-forward."""
     if demonstrator is None:
-        raise ValueError(f"demonstrations: {env_id} has no scripted demonstrator (the stacking tasks with end-point "
-                         "actions have one)")
+        raise ValueError(
+            f"demonstrations: {env_id} has no scripted demonstrator (the stacking tasks with end-point "
+            "actions have one)"
+        )
     if not isinstance(policy, FeedForward):
-        raise ValueError("demonstrations are cloned into feed-forward policies (linear, multilinear, mlp); "
-                         f"this run's policy is {type(policy).__name__}")
+        raise ValueError(
+            "demonstrations are cloned into feed-forward policies (linear, multilinear, mlp); "
+            f"this run's policy is {type(policy).__name__}"
+        )
 
 
 def clone(policy: Policy, demonstrations: Demonstrations, seed: int, device: str = "cpu") -> torch.Tensor:
-    """The weights (n,) whose policy's raw outputs are closest, in squared error, to the demonstrations' (UPDATES Adam
-    steps on minibatches of BATCH steps, the step size falling linearly), reading raw observations; from ``policy.initial_center``."""
+    """The weights (n,) whose policy's raw outputs are closest, in squared error, to the demonstrations', reading raw
+    observations: from ``policy.initial_center``, UPDATES Adam steps on minibatches of BATCH steps, the step size
+    falling linearly."""
     generator = torch.Generator().manual_seed(seed)
     inputs = torch.as_tensor(demonstrations.observations, device=device)
     targets = torch.as_tensor(demonstrations.raw_actions, device=device)
@@ -140,7 +145,8 @@ def cloned(
 ) -> tuple[torch.Tensor, Demonstrations]:
     """The clone (n,) after ``rounds`` rounds of ``episodes`` real episodes in all (``demonstrated``; the first
     round driven by the demonstrator, each later one by the clone so far), and every episode recorded."""
-    center, recorded = None, []
+    center: torch.Tensor | None = None
+    recorded: list[Demonstrations] = []
     for round_ in range(rounds):
         share = episodes * (round_ + 1) // rounds - episodes * round_ // rounds
         actor = None if center is None else acting(policy, center)

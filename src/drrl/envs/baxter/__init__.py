@@ -141,13 +141,16 @@ STACKING: dict[str, tuple[str, dict[str, Any], bool]] = {  # alias, Gymnasium id
 }
 
 for _alias, (_env_id, _options, _thesis_reward) in STACKING.items():
-    _judged = {"verdict": stack_verdict, "explain": explain_stack} if _thesis_reward else {}
     _scripted = _options.get("controller") == "end_point"  # the scripted stacker acts through end-point actions
-    _demonstrated = (
-        {"demonstrator": ScriptedStacker(StackTask(**_options)).act, "defaults": CLONED} if _scripted else {}
-    )
     register(
-        EnvEntry(_env_id, _alias, **_demonstrated, **_judged),
+        EnvEntry(
+            _env_id,
+            _alias,
+            verdict=stack_verdict if _thesis_reward else None,
+            explain=explain_stack if _thesis_reward else None,
+            demonstrator=ScriptedStacker(StackTask(**_options)).act if _scripted else None,
+            defaults=CLONED if _scripted else {},
+        ),
         "drrl.envs.baxter.stack_env:BaxterStackEnv",
         "drrl.envs.baxter.stack_env:BaxterStackVectorEnv",
         _options,
