@@ -36,11 +36,13 @@ def commands(script: str) -> list[str]:
 
 
 def shortened(config: TrainConfig) -> TrainConfig:
-    """``config`` with the least budget that still runs its loop: one generation, or two model-based iterations of
-    two generations, each fit a few updates long."""
+    """``config`` with the least budget that still runs its loop: one generation (after a demonstration a round), or
+    two model-based iterations of two generations, each fit a few updates long."""
     settings = config.model_based
     if settings is None:
-        return config.model_copy(update={"budget": config.popsize * config.episodes_per_candidate})
+        demonstrations = min(config.demonstrations, config.demonstration_rounds)
+        budget = demonstrations + config.popsize * config.episodes_per_candidate
+        return config.model_copy(update={"budget": budget, "demonstrations": demonstrations})
     settings = settings.model_copy(
         update={"generations": 2, "fit_updates": 5, "refit_updates": 5, "frame_updates": 5, "frame_refit_updates": 5}
     )

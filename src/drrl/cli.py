@@ -208,7 +208,7 @@ def train_command(
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}"
     try:
-        setup = prepare(config, backend, address, workers)
+        setup = prepare(config, backend, address, workers, progress=not quiet)
     except ValueError as error:  # unknown environment or policy, a space drrl cannot use, settings that conflict
         raise click.UsageError(str(error)) from None
     try:

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from drrl.envs.batch import ActionMap, make_batch_env
 from drrl.envs.registry import Demonstrator
@@ -45,7 +46,6 @@ class Demonstrations:
     raw_actions: np.ndarray  # (steps, a) float32
     episodes: int
     steps: int
-    mean_return: float
 
 
 def demonstrated(
@@ -65,7 +65,7 @@ def demonstrated(
     env = make_batch_env(env_id, episodes, engine)
     action_map, rng = ActionMap(env.single_action_space), np.random.default_rng(seed)
     observed, actions = [], []
-    running, returns = np.ones(episodes, dtype=bool), np.zeros(episodes)
+    running = np.ones(episodes, dtype=bool)
     steps, horizon = 0, max_steps if max_steps is not None else 10**9
     try:
         observations, _ = env.reset(seed=seed)
@@ -75,9 +75,8 @@ def demonstrated(
             actions.append(raw[running])
             acted = raw if actor is None else actor(observations)
             noisy = acted + noise * rng.standard_normal(raw.shape).astype(np.float32)
-            observations, rewards, terminated, truncated, _ = env.step(action_map(torch.from_numpy(noisy)))
+            observations, _, terminated, truncated, _ = env.step(action_map(torch.from_numpy(noisy)))
             steps += 1
-            returns += np.where(running, rewards, 0.0)
             running &= ~(terminated | truncated)
     finally:
         env.close()
@@ -86,7 +85,6 @@ def demonstrated(
         np.concatenate(actions),
         episodes,
         sum(len(o) for o in observed),
-        float(returns.mean()),
     )
 
 
@@ -142,17 +140,22 @@ def cloned(
     engine: str = "auto",
     max_steps: int | None = None,
     device: str = "cpu",
+    progress: bool = False,
 ) -> tuple[torch.Tensor, Demonstrations]:
     """The clone (n,) after ``rounds`` rounds of ``episodes`` real episodes in all (``demonstrated``; the first
-    round driven by the demonstrator, each later one by the clone so far), and every episode recorded."""
+    round driven by the demonstrator, each later one by the clone so far), and every episode recorded; with
+    ``progress``, a bar of the episodes recorded."""
     center: torch.Tensor | None = None
     recorded: list[Demonstrations] = []
+    bar = tqdm(total=episodes, unit="ep", desc="demonstrations", disable=not progress, dynamic_ncols=True)
     for round_ in range(rounds):
         share = episodes * (round_ + 1) // rounds - episodes * round_ // rounds
         actor = None if center is None else acting(policy, center)
         here = int(np.random.SeedSequence([seed, round_]).generate_state(1)[0])
         recorded.append(demonstrated(demonstrator, env_id, share, here, noise, engine, max_steps, actor))
         center = clone(policy, joined(recorded), here, device)
+        bar.update(share)
+    bar.close()
     assert center is not None
     return center, joined(recorded)
 
@@ -170,11 +173,9 @@ def acting(policy: Policy, center: torch.Tensor) -> Actor:
 
 def joined(parts: list[Demonstrations]) -> Demonstrations:
     """The episodes of ``parts`` as one record."""
-    episodes = sum(part.episodes for part in parts)
     return Demonstrations(
         np.concatenate([part.observations for part in parts]),
         np.concatenate([part.raw_actions for part in parts]),
-        episodes,
+        sum(part.episodes for part in parts),
         sum(part.steps for part in parts),
-        sum(part.mean_return * part.episodes for part in parts) / episodes,
     )

@@ -169,13 +169,13 @@ class TrainConfig(BaseModel):
         "(drrl.cloning), counted in the budget",
     )
     demonstration_rounds: int = Field(
-        4,
+        1,
         ge=1,
         le=1000,
         description="rounds the demonstrations are recorded in, each after the first driven by the clone so far",
     )
     demonstration_noise: float = Field(
-        0.1, ge=0, le=10, description="std of the noise added to the demonstrator's raw actions while recording"
+        0.05, ge=0, le=10, description="std of the noise added to the demonstrator's raw actions while recording"
     )
     start_from: str | None = Field(
         None,

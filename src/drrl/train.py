@@ -159,11 +159,12 @@ def prepare(
     address: str | None = None,
     workers: int | None = None,
     resuming: bool = False,
+    progress: bool = False,
 ) -> Setup:
     """Build envs, policy, search, world and backend; bad names, settings or unsupported spaces raise ValueError
     here, before any work. A new run (not ``resuming``) with ``config.start_from`` starts from that run's policy and
     world model (``transferred``), one with ``config.demonstrations`` from the clone of the env's demonstrator
-    (``demonstrated_start``)."""
+    (``demonstrated_start``; ``progress`` shows its episodes)."""
     entry = lookup(config.env)
     if config.search in POLICY_GRADIENTS and backend != "local":
         raise ValueError(f"search {config.search} runs its episodes here; use the local backend (--backend local)")
@@ -182,7 +183,7 @@ def prepare(
     finally:
         probe.close()
     if config.demonstrations and not resuming:
-        start = demonstrated_start(config, entry, policy)
+        start = demonstrated_start(config, entry, policy, progress)
     eval_env = make_batch_env(entry.env_id, config.eval_episodes, config.engine)
     try:
         search = build_search(config, policy, discrete, start.center)
@@ -271,7 +272,7 @@ def transferred(config: TrainConfig, policy: Policy, spaces_here: SpacePair) -> 
     return Transfer(trained_center(checkpoint, policy), model)
 
 
-def demonstrated_start(config: TrainConfig, entry: EnvEntry, policy: Policy) -> Transfer:
+def demonstrated_start(config: TrainConfig, entry: EnvEntry, policy: Policy, progress: bool = False) -> Transfer:
     """The policy cloned from ``config.demonstrations`` real episodes of the env's demonstrator (``drrl.cloning``),
     and the real episodes and steps they took."""
     assert entry.demonstrator is not None  # check_clonable
@@ -286,6 +287,7 @@ def demonstrated_start(config: TrainConfig, entry: EnvEntry, policy: Policy) -> 
         config.engine,
         config.max_steps,
         config.device,
+        progress,
     )
     return Transfer(center, spent=(recorded.episodes, recorded.steps))
 
@@ -374,7 +376,7 @@ def train(
     workers: int | None = None,
 ) -> Counters:
     """Spend ``config.budget`` real episodes, model-free or model-based; write a run folder to ``out`` if given."""
-    setup = prepare(config, backend, address, workers)
+    setup = prepare(config, backend, address, workers, progress=progress)
     return run(setup, subscribers(None if out is None else RunFolder.create(out), progress))
 
 
