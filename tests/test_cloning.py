@@ -44,7 +44,7 @@ def test_the_clone_of_a_linear_demonstrator_is_that_linear_policy(spec, bias):
     rng = np.random.default_rng(0)
     observations = rng.normal(size=(5000, 4)) * [0.1, 1.0, 3.0, 0.5] + (bias != 0) * np.array([2, -1, 0, 5])
     observations = observations.astype(np.float32)
-    record = Demonstrations(observations, (observations @ GAINS + bias)[:, None], 10, 5000)
+    record = Demonstrations(observations, (observations @ GAINS + bias)[:, None], 10)
     policy = make_policy(spec, 4, 1)
     center = clone(policy, record, seed=0)  # reads raw observations: the standardisation is folded in
     np.testing.assert_allclose(center[:4].numpy(), GAINS, atol=2e-3)

@@ -45,7 +45,10 @@ class Demonstrations:
     observations: np.ndarray  # (steps, o) float32
     raw_actions: np.ndarray  # (steps, a) float32
     episodes: int
-    steps: int
+
+    @property
+    def steps(self) -> int:
+        return len(self.observations)
 
 
 def demonstrated(
@@ -80,12 +83,7 @@ def demonstrated(
             running &= ~(terminated | truncated)
     finally:
         env.close()
-    return Demonstrations(
-        np.concatenate(observed).astype(np.float32),
-        np.concatenate(actions),
-        episodes,
-        sum(len(o) for o in observed),
-    )
+    return Demonstrations(np.concatenate(observed).astype(np.float32), np.concatenate(actions), episodes)
 
 
 def check_clonable(policy: Policy, demonstrator: Demonstrator | None, env_id: str) -> None:
@@ -153,11 +151,12 @@ def cloned(
         actor = None if center is None else acting(policy, center)
         here = int(np.random.SeedSequence([seed, round_]).generate_state(1)[0])
         recorded.append(demonstrated(demonstrator, env_id, share, here, noise, engine, max_steps, actor))
-        center = clone(policy, joined(recorded), here, device)
+        record = joined(recorded)
+        center = clone(policy, record, here, device)
         bar.update(share)
     bar.close()
     assert center is not None
-    return center, joined(recorded)
+    return center, record
 
 
 def acting(policy: Policy, center: torch.Tensor) -> Actor:
@@ -177,5 +176,4 @@ def joined(parts: list[Demonstrations]) -> Demonstrations:
         np.concatenate([part.observations for part in parts]),
         np.concatenate([part.raw_actions for part in parts]),
         sum(part.episodes for part in parts),
-        sum(part.steps for part in parts),
     )
