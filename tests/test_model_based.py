@@ -593,6 +593,41 @@ def test_pendulum_s_reward_on_the_next_observation_is_gymnasium_s_on_the_state_o
             assert ours[0] == pytest.approx(real_reward, abs=1e-5) and not ended[0]
 
 
+def test_reacher_s_closed_forms_give_gymnasium_s_rewards_and_observations():
+    """Reacher-v5 over 10 episodes of random torques: the reward in closed form of the next observation less the
+    action's cost is Gymnasium's, and an observation completed from its joint angles (the rest scrambled) and the
+    previous target is the real one, the fingertip within 5 mm (Gymnasium's offset is MuJoCo's kinematics at the
+    start of the step's last physics substep, the angles at its end)."""
+    import gymnasium
+
+    from drrl.envs.registry import lookup
+
+    entry = lookup("Reacher-v5")
+    assert entry.reward is not None and entry.action_cost is not None and entry.complete_observation is not None
+    try:
+        env = gymnasium.make("Reacher-v5")
+    except (ImportError, gymnasium.error.DependencyNotInstalled) as error:  # its MuJoCo tasks need drrl[envs]
+        pytest.skip(str(error))
+    env.action_space.seed(0)
+    scrambled = np.random.default_rng(0)
+    for episode in range(10):
+        previous, _ = env.reset(seed=episode)
+        for step in range(1, 51):
+            action = env.action_space.sample()
+            observation, real_reward, *_ = env.step(action)
+            rewards, ended = entry.reward(observation[None], np.array([step]))
+            assert rewards[0] - entry.action_cost(action[None])[0] == pytest.approx(real_reward, abs=1e-9)
+            assert not ended[0]
+            predicted = observation[None].copy()
+            predicted[:, :4] *= 1.5  # a (cos, sin) pair off the unit circle, at the same angle
+            predicted[:, 4:6] += scrambled.normal(size=2)
+            predicted[:, 8:] = scrambled.normal(size=2)
+            completed = entry.complete_observation(previous[None], predicted)
+            np.testing.assert_allclose(completed[0, :8], observation[:8], atol=1e-6)
+            np.testing.assert_allclose(completed[0, 8:], observation[8:], atol=5e-3)
+            previous = observation
+
+
 @pytest.mark.parametrize(
     "keep, promised, undone",
     [(True, [-300.0, -200.0], True), (True, [-100.0, -200.0], False), (False, [-300.0, -200.0], False)],

@@ -112,6 +112,7 @@ class ModelBased(World):
         known = settings.reward in ("auto", "known")
         self.known_reward = entry.reward if known else None
         self.complete_observation = entry.complete_observation if known else None
+        self.action_cost = entry.action_cost if known else None
         self.end_reward = None if self.known_reward else entry.end_reward
         self.outcome: LearnedOutcome | None = None  # the reward and end learned where none is known
         self.buffer = EpisodeBuffer()
@@ -276,6 +277,7 @@ class ModelBased(World):
             disagreement_penalty,
             self.complete_observation,
             self.settings.policy_memory,
+            self.action_cost,
         )
 
     def refit_afresh(self, reports: list[FitReport], iteration: int) -> list[FitReport]:

@@ -1,9 +1,10 @@
 """What drrl knows of some of Gymnasium's own tasks beyond their specs: the return usually counted as solved where
 Gymnasium gives none, the settings a model-free run starts from where drrl's defaults for Gymnasium's envs do not
 reach it and these were measured to (BENCHMARKS.md, "Gymnasium's envs with drrl's defaults, beside PPO"), and
-rewards and ends in closed form of the next observation, which a model-based run's imagined episodes use instead of
-learning them (as model-based libraries give a task's termination function: a learned end head sees a fall only once
-an episode)."""
+rewards and ends in closed form of the next observation and the reward's share that depends on the action, which a
+model-based run's imagined episodes use instead of learning them (as model-based libraries give a task's termination
+function: a learned end head sees a fall only once an episode), and the observation entries that follow in closed form
+from the others, which imagined observations are completed by."""
 
 from __future__ import annotations
 
@@ -44,6 +45,14 @@ MODEL_BASED_DEFAULTS: dict[str, dict] = {
         "budget": 30,
         "model_based": {"generations": 120, "patience": 120},
     },
+    # Imagined episodes paid by Reacher's reward and control cost in closed form, its fingertip recomputed from the
+    # predicted joint angles: seeds 0-2 reached -7.1, -7.2 and -8.3 within 40 real episodes (2,000 steps), where a
+    # learned reward gave -67 to -104. The arm's state is its observation, so an ensemble of feed-forward models.
+    "Reacher-v5": {
+        "policy": "linear",
+        "budget": 40,
+        "model_based": {"model_kind": "mlp", "hidden": [64], "ensemble_size": 5, "generations": 100, "patience": 100},
+    },
 }
 
 
@@ -71,9 +80,42 @@ def pendulum_reward(next_observations: np.ndarray, steps: np.ndarray) -> tuple[n
     return -(np.arctan2(sin, cos) ** 2 + 0.1 * velocity**2), np.zeros(len(next_observations), dtype=bool)
 
 
+def reacher_reward(next_observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gymnasium's Reacher-v5 (mujoco/reacher_v5.py) pays −‖fingertip − target‖ (observations 8 and 9, after the
+    step) and −‖a‖² (``reacher_action_cost``) a step. The episode never ends."""
+    return -np.linalg.norm(next_observations[:, 8:10], axis=1), np.zeros(len(next_observations), dtype=bool)
+
+
+def reacher_action_cost(actions: np.ndarray) -> np.ndarray:
+    """Reacher-v5's control cost ‖a‖², of the torques the arm receives."""
+    return np.square(actions).sum(axis=1)
+
+
+REACHER_LINKS = (0.1, 0.11)  # m: shoulder to elbow, elbow to fingertip (reacher.xml's body1 and fingertip positions)
+
+
+def complete_reacher_observation(observations: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """Reacher-v5's observation (cos q, sin q, target, q̇, fingertip − target) with what follows from the joint angles
+    recomputed: each (cos, sin) pair put back on the unit circle, the target kept where it was (it does not move), and
+    the fingertip's offset from it by the arm's forward kinematics. Gymnasium's offset is MuJoCo's kinematics at the
+    start of the step's last physics substep, the angles at its end: the two differ by up to about 3 mm."""
+    completed = predicted.copy()
+    angles = np.arctan2(predicted[:, 2:4], predicted[:, 0:2])
+    completed[:, 0:2], completed[:, 2:4] = np.cos(angles), np.sin(angles)
+    completed[:, 4:6] = observations[:, 4:6]
+    shoulder, elbow = angles[:, 0], angles.sum(axis=1)
+    upper, lower = REACHER_LINKS
+    completed[:, 8] = upper * np.cos(shoulder) + lower * np.cos(elbow) - completed[:, 4]
+    completed[:, 9] = upper * np.sin(shoulder) + lower * np.sin(elbow) - completed[:, 5]
+    return completed
+
+
 REWARDS = {
     "CartPole-v0": cartpole_reward,
     "CartPole-v1": cartpole_reward,
     "InvertedPendulum-v5": inverted_pendulum_reward,
     "Pendulum-v1": pendulum_reward,
+    "Reacher-v5": reacher_reward,
 }
+ACTION_COSTS = {"Reacher-v5": reacher_action_cost}
+COMPLETIONS = {"Reacher-v5": complete_reacher_observation}

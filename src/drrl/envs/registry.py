@@ -1,13 +1,14 @@
 """Everything drrl knows about an environment, in one entry per environment.
 
 An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what "solved" means) and how
-``drrl eval`` explains it, the task's reward and end in closed form of the observation when there is one (imagined
-episodes then use it instead of a learned reward) and the observation entries that follow in closed form from the
-others (imagined observations are completed by it), the reward of a step that ends the episode where the step alone
-decides it (imagined episodes with a learned end then pay it), a scripted demonstrator where the task has one (a
-run's first centre can be cloned from its episodes), and settings that suit the task. Each environment
-registers its entry from its own module (``register``), which also registers it with Gymnasium; a family of ids made
-from others, such as ``Pixels/ID`` for any ``ID``, registers each member when it is first named (``register_family``).
+``drrl eval`` explains it, the task's reward and end in closed form of the observation when there is one, and of the
+action where the task charges it (imagined episodes then use them instead of a learned reward), the observation
+entries that follow in closed form from the others (imagined observations are completed by them), the reward of a
+step that ends the episode where the step alone decides it (imagined episodes with a learned end then pay it), a
+scripted demonstrator where the task has one (a run's first centre can be cloned from its episodes), and settings
+that suit the task. Each environment registers its entry from its own module (``register``), which also registers
+it with Gymnasium; a family of ids made from others, such as ``Pixels/ID`` for any ``ID``, registers each member
+when it is first named (``register_family``).
 An environment that drrl does not know is any registered Gymnasium id; its entry has the verdict "solved" where
 Gymnasium gives the task a ``reward_threshold`` or the field a usual level (a mean return at or above it), and
 settings that reach it where they were measured (``drrl.envs.gymnasium_tasks``).
@@ -24,7 +25,14 @@ import gymnasium
 import numpy as np
 import torch
 
-from drrl.envs.gymnasium_tasks import DEFAULTS, MODEL_BASED_DEFAULTS, REWARDS, SOLVED_LEVELS
+from drrl.envs.gymnasium_tasks import (
+    ACTION_COSTS,
+    COMPLETIONS,
+    DEFAULTS,
+    MODEL_BASED_DEFAULTS,
+    REWARDS,
+    SOLVED_LEVELS,
+)
 
 # (episode_returns (P, E), terminated (P, E)) -> {criterion: met}
 Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
@@ -32,6 +40,8 @@ Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
 Explanation = Callable[[torch.Tensor, torch.Tensor], str]
 # (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,))
 RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+# actions (N, a), as the env receives them -> the reward's share that depends on them, as a cost (N,)
+ActionCost = Callable[[np.ndarray], np.ndarray]
 # 1-based steps (N,) at which episodes end by termination -> the rewards of those steps (N,)
 EndReward = Callable[[np.ndarray], np.ndarray]
 # observations (N, o) -> the env's actions (N, a): a scripted policy without memory (drrl.cloning copies its episodes)
@@ -50,6 +60,7 @@ class EnvEntry:
     verdict: Verdict | None = None
     explain: Explanation | None = None
     reward: RewardFunction | None = None
+    action_cost: ActionCost | None = None  # taken from ``reward`` where the task charges its actions
     complete_observation: ObservationFunction | None = None  # e.g. Baxter's end-point offsets from its joint angles
     end_reward: EndReward | None = None  # a terminating step's reward where only the step decides it (5.8's failure)
     demonstrator: Demonstrator | None = None  # a scripted policy a run's first centre can be cloned from
@@ -184,6 +195,8 @@ def gymnasium_entry(env_id: str) -> EnvEntry:
     entry = EnvEntry(
         env_id,
         reward=REWARDS.get(env_id),
+        action_cost=ACTION_COSTS.get(env_id),
+        complete_observation=COMPLETIONS.get(env_id),
         defaults=DEFAULTS.get(env_id, {}),
         model_based_defaults=MODEL_BASED_DEFAULTS.get(env_id, {}),
     )

@@ -4,11 +4,11 @@ Every sub-environment starts from a real start observation drawn from the buffer
 drawn at reset (an episode restarted later keeps its env's member), and then lives in the model: each step feeds the
 current (predicted) observation and the policy's action to the model, which is dynamical consistency (3.3.3) at
 imagination time. Rewards and ends come either from the task's reward in closed form applied to the predicted
-observations (``known_reward``, e.g. the thesis's 5.8, from drrl's environment registry) or from the model's reward
-and end heads. Where some observation entries follow in closed form from the others (``complete_observation``, e.g.
-Baxter's end-point offsets from its joint angles), each prediction is completed by it before anything reads it.
-Nothing here touches the real environment: imagined steps cost no real samples, and the training loop counts them
-apart.
+observations (``known_reward``, e.g. the thesis's 5.8, from drrl's environment registry), less the cost of the action
+where the task charges it (``action_cost``, e.g. Reacher's ‖a‖²), or from the model's reward and end heads.
+Where some observation entries follow in closed form from the others (``complete_observation``, e.g. Baxter's
+end-point offsets from its joint angles), each prediction is completed by it before anything reads it. Nothing here
+touches the real environment: imagined steps cost no real samples, and the training loop counts them apart.
 
 Episode seeds (``reset(seed=[...])``, one per sub-environment) fix each episode's start and member, so candidates of
 one PGPE generation are compared on the same imagined starts, as they are on real ones.
@@ -39,6 +39,8 @@ from drrl.models.remembering import memory_space
 # (next observations (N, o), 1-based steps (N,)) -> (rewards (N,), terminated (N,)): a task's reward in closed form,
 # as drrl's environment registry holds it (drrl.envs.registry.EnvEntry.reward)
 RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+# actions (N, a) -> the reward's share that depends on them, as a cost (N,) (EnvEntry.action_cost)
+ActionCost = Callable[[np.ndarray], np.ndarray]
 # (observations (N, o), predicted next observations (N, o)) -> the next ones with the entries that follow from the
 # rest recomputed (EnvEntry.complete_observation)
 ObservationFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -60,6 +62,7 @@ class ImaginedWorld:
     disagreement_penalty: float = 0.0
     complete_observation: ObservationFunction | None = None
     memory: bool = False
+    action_cost: ActionCost | None = None
 
     @classmethod
     def of(
@@ -72,6 +75,7 @@ class ImaginedWorld:
         disagreement_penalty: float = 0.0,
         complete_observation: ObservationFunction | None = None,
         memory: bool = False,
+        action_cost: ActionCost | None = None,
     ) -> ImaginedWorld:
         return cls(
             type(model),
@@ -84,6 +88,7 @@ class ImaginedWorld:
             disagreement_penalty,
             complete_observation,
             memory,
+            action_cost,
         )
 
     def make(self, num_envs: int) -> ImaginedEnv:
@@ -97,6 +102,7 @@ class ImaginedWorld:
             self.disagreement_penalty,
             self.complete_observation,
             self.memory,
+            self.action_cost,
         )
 
 
@@ -113,6 +119,7 @@ class ImaginedEnv(VectorEnv):
         complete_observation: recomputes the observation entries that follow from the others; None for none.
         memory: observations are [ô_t, h_{t−1}], the prediction and the state it was predicted from (the model's
             ``memory``, ``drrl.models.remembering``), for a policy that reads the model's memory.
+        action_cost: the known reward's share that depends on the action, taken from it; None for none.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
@@ -128,6 +135,7 @@ class ImaginedEnv(VectorEnv):
         disagreement_penalty: float = 0.0,
         complete_observation: ObservationFunction | None = None,
         memory: bool = False,
+        action_cost: ActionCost | None = None,
     ):
         starts = np.array(start_observations, dtype=np.float32)  # a copy: a Ray worker's arrays are read-only
         if starts.ndim != 2 or len(starts) == 0:
@@ -139,6 +147,7 @@ class ImaginedEnv(VectorEnv):
         self.disagreement_penalty = disagreement_penalty
         self.complete_observation = complete_observation
         self.memory = memory
+        self.action_cost = action_cost
         self.device = model.device
         self._starts = torch.as_tensor(starts, device=self.device)
         bound = np.finfo(np.float32).max
@@ -204,6 +213,8 @@ class ImaginedEnv(VectorEnv):
         self.elapsed_steps += 1
         if self.known_reward is not None:
             reward, terminated = self.known_reward(self._observation.cpu().numpy(), self.elapsed_steps)
+            if self.action_cost is not None:
+                reward = reward - self.action_cost(action.cpu().numpy())
         else:
             reward = self._own(prediction.rewards).cpu().numpy().astype(np.float64)
             terminated = self._own(prediction.ends).cpu().numpy() > 0.5
