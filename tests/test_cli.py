@@ -260,6 +260,24 @@ def test_debug_shows_the_traceback_behind_a_refusal(tmp_path):
     assert "Traceback" in loud.output and "lookup" in loud.output
 
 
+def test_an_occupied_out_is_refused_before_any_work_and_a_refused_run_leaves_no_folder(tmp_path, monkeypatch):
+    """Preparing a run can be long work (recording demonstrations): an occupied --out is refused before it; a run
+    refused while preparing leaves no folder it made behind, and an empty folder the user made stays."""
+    occupied, made, users = tmp_path / "occupied", tmp_path / "made", tmp_path / "users"
+    occupied.mkdir()
+    (occupied / "notes.txt").write_text("mine")
+    users.mkdir()
+    with monkeypatch.context() as patched:
+        patched.setattr("drrl.cli.prepare", lambda *args, **kwargs: pytest.fail("prepared before checking --out"))
+        result = CliRunner().invoke(main, ["train", "cartpole", "--out", str(occupied)])
+    assert result.exit_code == 2 and "already holds files; choose another --out" in result.output
+    assert (occupied / "notes.txt").read_text() == "mine"
+    for out in (made, users):
+        refused = CliRunner().invoke(main, ["train", "--env", "Nope-v9", "--out", str(out)])
+        assert refused.exit_code == 2 and "unknown environment 'Nope-v9'" in refused.output
+    assert not made.exists() and users.is_dir()
+
+
 def test_the_drrl_command_is_installed():
     drrl = Path(sys.executable).with_name("drrl")
     result = subprocess.run([drrl, "train", "--help"], capture_output=True, text=True, check=True)

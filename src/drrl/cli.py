@@ -206,18 +206,31 @@ def train_command(
     except ValidationError as error:
         raise click.UsageError("invalid configuration:\n" + describe_errors(error)) from None
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}"
+    out = Path(out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}")
+    made = not out.exists()
+    try:  # before any work (demonstrations are recorded while preparing): an occupied --out is refused at once
+        folder = RunFolder.create(out)
+    except ValueError as error:
+        raise click.UsageError(str(error)) from None
     try:
         setup = prepare(config, backend, address, workers, progress=not quiet)
     except ValueError as error:  # unknown environment or policy, a space drrl cannot use, settings that conflict
+        abandon(folder, made)
         raise click.UsageError(str(error)) from None
     try:
-        folder = RunFolder.create(out)
         attached = subscribers(folder, not quiet, tensorboard)
-    except (ValueError, ImportError) as error:  # an occupied --out, TensorBoard not installed
+    except ImportError as error:  # TensorBoard not installed
         setup.close()
+        abandon(folder, made)
         raise click.UsageError(str(error)) from None
     run_and_report(setup, folder, attached)
+
+
+def abandon(folder: RunFolder, made: bool) -> None:
+    """Let go of a run folder no run started in, and remove it if this command made it and it is still empty."""
+    folder.release()
+    if made and not any(folder.path.iterdir()):
+        folder.path.rmdir()
 
 
 def resume_run(
