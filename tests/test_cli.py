@@ -278,6 +278,21 @@ def test_an_occupied_out_is_refused_before_any_work_and_a_refused_run_leaves_no_
     assert not made.exists() and users.is_dir()
 
 
+def test_a_run_told_to_stop_when_solved_spends_no_real_episode_past_its_solved_centre(tmp_path):
+    result, out = train(tmp_path, "cartpole", "--budget", "3000", "--eval-share", "1", "--stop-when-solved", "true")
+    rows = metrics(out)
+    criteria = ("balanced", "near_optimal")
+    assert result.exit_code == 0, result.output
+    assert "the run stopped there (stop_when_solved)" in result.output
+    assert all(rows[-1][name] == "1" for name in criteria)
+    assert not any(all(row[name] == "1" for name in criteria) for row in rows[:-1])
+    assert int(rows[-1]["real_episodes"]) < 3000
+    resumed = CliRunner().invoke(main, ["train", "--resume", str(out)])
+    assert resumed.exit_code == 0 and metrics(out) == rows  # solved: nothing more to do
+    refused, _ = train(tmp_path, "Walker2d-v5", "--stop-when-solved", "true", name="walker")
+    assert refused.exit_code == 2 and "stop_when_solved: Walker2d-v5 has no verdict" in refused.output
+
+
 def test_the_drrl_command_is_installed():
     drrl = Path(sys.executable).with_name("drrl")
     result = subprocess.run([drrl, "train", "--help"], capture_output=True, text=True, check=True)

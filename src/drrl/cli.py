@@ -15,7 +15,7 @@ from drrl.cli_params import INTEGER
 from drrl.config import GYMNASIUM_DEFAULTS, TrainConfig, describe_errors, env_defaults, load_config_file
 from drrl.envs.batch import ENGINES, make_batch_env
 from drrl.envs.registry import aliases, lookup
-from drrl.loop import Counters, Setup, derive_seed, measure, run
+from drrl.loop import Counters, Setup, derive_seed, measure, run, solved
 from drrl.model_based import ModelDiverged
 from drrl.policies import ACCEPTED_FORMS
 from drrl.policy_gradient import POLICY_GRADIENTS
@@ -108,6 +108,7 @@ def main(ctx: click.Context, debug: bool) -> None:
 )
 @setting("seed", INTEGER, "random seed")
 @setting("checkpoint_every", INTEGER, "generations between checkpoints")
+@setting("stop_when_solved", click.BOOL, "end the run once a measured centre meets every criterion of the task")
 @setting(
     "demonstrations",
     INTEGER,
@@ -313,6 +314,12 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
         if counters.imagined_episodes
         else ""
     )
+    if solved(setup, counters):
+        click.echo(
+            f"solved: the centre of {unit} {counters.iteration} met every criterion of {setup.entry.env_id}; the run "
+            f"stopped there (stop_when_solved), {setup.world.real_budget - counters.real_episodes} real episodes "
+            f"of the budget unspent"
+        )
     click.echo(
         f"done: {counters.iteration} {unit}s, {counters.real_episodes} real episodes, "
         f"{counters.real_steps} real steps{imagined}; best measured centre {counters.best_center_return:.1f} "

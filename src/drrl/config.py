@@ -139,6 +139,11 @@ class TrainConfig(BaseModel):
         description="the most of a model-free run's env steps that measuring may take (1: measure every eval_every)",
     )
     checkpoint_every: int = Field(10, ge=1, le=10**9, description="generations between checkpoints")
+    stop_when_solved: bool = Field(
+        False,
+        description="end the run once a measured centre meets every criterion of the task's verdict, the real "
+        "episodes left unspent",
+    )
     max_steps: int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
     reward_shift: float = Field(
         0.0,

@@ -194,7 +194,8 @@ class Subscriber:
 
 
 def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters | None = None) -> Counters:
-    """Step ``setup.world`` to the end of its budget; ``counters`` (from ``restore``) continue a run."""
+    """Step ``setup.world`` to the end of its budget, or until ``solved``; ``counters`` (from ``restore``) continue a
+    run."""
     if counters is None:
         counters = Counters(real_episodes=setup.spent[0], real_steps=setup.spent[1])
     snapshot = checkpoint_state(setup, counters)
@@ -204,6 +205,8 @@ def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters
     try:
         with _sigterm_as_interrupt():
             for iteration in range(counters.iteration + 1, setup.world.iterations + 1):
+                if solved(setup, counters):
+                    break
                 row = setup.world.step(setup, counters, iteration)
                 counters.iteration = iteration
                 row.update(measure_center(setup, counters, iteration))
@@ -221,6 +224,14 @@ def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters
         for subscriber in subscribers:  # the last whole step's state, whatever stopped the run
             subscriber.ended(setup, counters, snapshot)
     return counters
+
+
+def solved(setup: Setup, counters: Counters) -> bool:
+    """Whether a run with ``stop_when_solved`` is done before its budget: its last step's measured centre met every
+    criterion of the task's verdict. Real episodes are the currency: none is spent past a solved centre."""
+    criteria = setup.entry.criteria()
+    last = counters.rows[-1] if counters.rows else {}
+    return setup.config.stop_when_solved and bool(criteria) and all(last.get(name) == 1 for name in criteria)
 
 
 def measure(policy: Policy, center: torch.Tensor, env: VectorEnv, max_steps: int | None, seed: int) -> Evaluation:

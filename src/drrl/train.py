@@ -166,6 +166,8 @@ def prepare(
     world model (``transferred``), one with ``config.demonstrations`` from the clone of the env's demonstrator
     (``demonstrated_start``; ``progress`` shows its episodes)."""
     entry = lookup(config.env)
+    if config.stop_when_solved and not entry.criteria():
+        raise ValueError(f"stop_when_solved: {entry.env_id} has no verdict (no solved level) to stop at")
     if config.search in POLICY_GRADIENTS and backend != "local":
         raise ValueError(f"search {config.search} runs its episodes here; use the local backend (--backend local)")
     config = resolved(config, entry.env_id)

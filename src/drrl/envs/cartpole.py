@@ -589,6 +589,7 @@ SWING_UP_SETTINGS = {
 SWING_UP_MODEL_BASED_SETTINGS: dict[str, Any] = {
     **{name: value for name, value in SWING_UP_SETTINGS.items() if name not in ("budget", "eval_every")},
     "budget": 30,
+    "stop_when_solved": True,  # real episodes are the currency: none spent past a solved centre
     "model_based": {
         "model_kind": "lstm",
         "hidden": (32,),
