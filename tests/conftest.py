@@ -1,5 +1,24 @@
+import gymnasium
 import pytest
 import torch
+from gymnasium import spaces
+
+
+class WordObserving(gymnasium.Env):
+    """An env observing words, a space drrl cannot give a policy: for the refusals of unsupported spaces."""
+
+    observation_space = spaces.Text(max_length=4)
+    action_space = spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return "word", {}
+
+    def step(self, action):
+        return "word", 0.0, True, False, {}
+
+
+gymnasium.register("tests/WordObserving-v0", entry_point=WordObserving, max_episode_steps=10)
 
 
 @pytest.fixture(scope="module")

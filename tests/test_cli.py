@@ -203,7 +203,7 @@ def test_config_file_is_read_and_overridden_by_options(tmp_path):
         (["--sigma-init", "0"], "sigma_init: Input should be greater than 0"),
         (["--popsize", "7"], "symmetric sampling needs an even popsize"),
         (["--budget", "5"], "smaller than one generation"),
-        (["--env", "FrozenLake-v1"], "needs a 1-D Box"),
+        (["--env", "tests/WordObserving-v0"], "needs a 1-D Box"),
         (["cartpole", "--env", "Pendulum-v1"], "two environments given"),
     ],
 )

@@ -108,6 +108,28 @@ def test_an_ended_episode_stays_where_it_ended_until_the_next_reset():
     assert np.abs(restarted).max() <= 0.05
 
 
+def test_discrete_and_tuple_observations_are_seen_one_hot_and_an_env_without_a_time_limit_is_cut(tmp_path):
+    """FrozenLake observes its cell as Discrete(16), Blackjack a tuple of three: both flattened by Gymnasium's own
+    rule, also where EnvPool ships the id (its toy-text tasks observe raw integers, so they stay on this engine).
+    CliffWalking has no time limit: a run's episodes are cut at 1,000 steps by default, so a policy that never
+    reaches the goal cannot stall it."""
+    lake = make_batch_env("FrozenLake-v1", 3)
+    assert lake.single_observation_space.shape == (16,)
+    observations, _ = lake.reset(seed=[0, 1, 2])
+    cells = [gymnasium.make("FrozenLake-v1").reset(seed=seed)[0] for seed in (0, 1, 2)]
+    assert np.array_equal(observations, np.eye(16)[cells])
+    blackjack = make_batch_env("Blackjack-v1", 2)
+    assert blackjack.single_observation_space.shape == (32 + 11 + 2,)
+    assert blackjack.reset(seed=[4, 5])[0].sum(axis=1).tolist() == [3, 3]  # one hot per part
+    out = tmp_path / "cliff"
+    arguments = ["train", "CliffWalking-v1", "--budget", "4", "--popsize", "4", "--eval-episodes", "1", "--quiet"]
+    result = CliRunner().invoke(main, [*arguments, "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert RunFolder(out).read_config().max_steps == 1000
+    assert RunFolder(out).read_config().engine == "gymnasium"
+    assert int((out / "metrics.csv").read_text().splitlines()[-1].split(",")[2]) <= 4 * 1000
+
+
 def test_auto_picks_drrls_own_batch_for_its_envs_and_refuses_engines_that_cannot_run_an_id(monkeypatch):
     assert choose_engine("cartpole") == "native"
     monkeypatch.setattr(pool, "installed", lambda: False)

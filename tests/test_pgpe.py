@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from drrl.search import FITNESS_SHAPINGS, OPTIMIZERS, PGPE, SAMPLERS, centered_ranks, mirror_about_median
-from drrl.search.pgpe import HALF_NORMAL_MEDIAN
+from drrl.search.pgpe import FLAT_FITNESS_SIGMA_LIMIT, HALF_NORMAL_MEDIAN
 
 
 def inject(pgpe: PGPE, *rows: list[float]) -> None:
@@ -162,6 +162,15 @@ def test_flat_fitness_keeps_the_centre_and_widens_sigma_by_the_largest_step(samp
     pgpe.ask()
     metrics = pgpe.tell(torch.arange(8.0))
     assert metrics["tied"] == 0.0 and metrics["center_step_norm"] > 0
+
+
+def test_flat_fitness_widens_sigma_no_further_than_its_limit():
+    """A task that pays nothing for a long time: σ stops at FLAT_FITNESS_SIGMA_LIMIT · σ₀ (1.2²⁶ ≈ 114 > 100)."""
+    pgpe = PGPE(torch.zeros(2), popsize=4, sigma_init=0.03, max_sigma_change=0.2, optimizer="clipup")
+    for _ in range(60):
+        pgpe.ask()
+        pgpe.tell(torch.zeros(4))
+    close(pgpe.sigma, [0.03 * FLAT_FITNESS_SIGMA_LIMIT] * 2)
 
 
 # ------------------------------------------------------------------------------------- super-symmetric mirror

@@ -90,6 +90,7 @@ def main(ctx: click.Context, debug: bool) -> None:
 @setting("popsize", INTEGER, "candidates per generation")
 @setting("episodes_per_candidate", INTEGER, "real episodes per candidate")
 @setting("budget", INTEGER, "real training episodes to spend")
+@setting("max_steps", INTEGER, "cut episodes longer than this (Gymnasium's envs without a time limit: 1000)")
 @setting("sigma_init", float, "initial σ of every parameter (reinforce, enac: of every action)")
 @setting("center_lr", float, "step size of μ")
 @setting("sigma_lr", float, "learning rate of σ")

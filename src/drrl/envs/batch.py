@@ -2,9 +2,9 @@
 
 * ``native``: drrl's own environments, NumPy or MuJoCo batches (``gymnasium.make_vec`` returns them).
 * ``envpool``: EnvPool's C++ batches of Gymnasium's classic-control and MuJoCo tasks (``drrl.envs.pool``).
-* ``gymnasium``: any other registered env with a 1-D Box observation and a Box or Discrete action, one Gymnasium
-  env per slot stepped in turn (``drrl.envs.serial``). Gymnasium's own native vector envs are not used: they
-  take one reset seed for the whole batch, and drrl gives every episode its own.
+* ``gymnasium``: any other registered env with a 1-D Box observation (or discrete ones, seen one-hot) and a Box or
+  Discrete action, one Gymnasium env per slot stepped in turn (``drrl.envs.serial``). Gymnasium's own native
+  vector envs are not used: they take one reset seed for the whole batch, and drrl gives every episode its own.
 * ``processes``: the same, the slots spread over one worker process per core (``drrl.envs.processes``), for envs
   whose steps are expensive; the same episodes as ``gymnasium``. Never chosen by ``auto``.
 
@@ -139,7 +139,10 @@ def is_frames(space: spaces.Space) -> bool:
 def observation_size(space: spaces.Space) -> int:
     """The length of a 1-D Box observation; anything else is refused with a reason."""
     if not isinstance(space, spaces.Box) or len(space.shape) != 1:
-        raise ValueError(f"unsupported observation space {space}; drrl needs a 1-D Box")
+        raise ValueError(
+            f"unsupported observation space {space}; drrl needs a 1-D Box, or Discrete values or tuples or dicts of"
+            " them (seen one-hot)"
+        )
     return space.shape[0]
 
 

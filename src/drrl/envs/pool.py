@@ -33,10 +33,16 @@ def installed() -> bool:
 
 
 def ships(env_id: str) -> bool:
-    """Whether EnvPool (installed) has a task of this Gymnasium id."""
+    """Whether EnvPool (installed) has a task of this Gymnasium id that observes a vector of floats, as Gymnasium's
+    does: its toy-text tasks observe a cell's index or raw integers where Gymnasium's observe Discrete values or
+    tuples of them, which drrl sees one-hot (``drrl.envs.serial``), so those stay on the gymnasium engine."""
     import envpool
 
-    return env_id in envpool.list_all_envs()
+    if env_id not in envpool.list_all_envs():
+        return False
+    with _quiet():
+        space = envpool.make_spec(env_id).observation_space
+    return len(space.shape or ()) == 1 and np.issubdtype(space.dtype, np.floating)
 
 
 class PooledEpisodes(EpisodeSlots):

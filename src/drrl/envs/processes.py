@@ -22,11 +22,10 @@ import signal
 from collections.abc import Mapping
 from typing import Any
 
-import gymnasium
 import numpy as np
 
 from drrl.envs.cores import available_cores
-from drrl.envs.serial import SerialEpisodes
+from drrl.envs.serial import SerialEpisodes, make_env
 from drrl.envs.slots import EpisodeSlots
 
 
@@ -64,7 +63,7 @@ class ProcessEpisodes(EpisodeSlots):
         self, env_id: str, num_envs: int, options: Mapping[str, Any] | None = None, workers: int | None = None
     ):
         # made here first, so that a missing dependency or a bad option fails as it does on the serial engine
-        probe = gymnasium.make(env_id, disable_env_checker=True, **(options or {}))
+        probe = make_env(env_id, options)
         probe.close()
         workers = max(1, min(workers or available_cores(), num_envs))
         methods = multiprocessing.get_all_start_methods()

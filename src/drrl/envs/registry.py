@@ -186,19 +186,24 @@ def _listed(names) -> str:
     return ", ".join(shown) + " (`drrl train --help` lists them all)"
 
 
+UNLIMITED_EPISODE_CUT = 1000  # steps: an env without a time limit of its own (CliffWalking) would never end
+
+
 def gymnasium_entry(env_id: str) -> EnvEntry:
     """The entry of a Gymnasium env drrl has no module for: solved at its spec's ``reward_threshold`` (or the usual
     level), if there is one, with the settings known to reach it and its reward in closed form where drrl knows
-    it."""
-    threshold = gymnasium.spec(env_id).reward_threshold
-    threshold = SOLVED_LEVELS.get(env_id) if threshold is None else threshold
+    it. An env without a time limit of its own has its episodes cut after ``UNLIMITED_EPISODE_CUT`` steps by
+    default (``max_steps``), as Gymnasium's MuJoCo tasks are: an episode a policy never ends would stall a run."""
+    spec = gymnasium.spec(env_id)
+    threshold = SOLVED_LEVELS.get(env_id) if spec.reward_threshold is None else spec.reward_threshold
+    cut = {} if spec.max_episode_steps else {"max_steps": UNLIMITED_EPISODE_CUT}
     entry = EnvEntry(
         env_id,
         reward=REWARDS.get(env_id),
         action_cost=ACTION_COSTS.get(env_id),
         complete_observation=COMPLETIONS.get(env_id),
-        defaults=DEFAULTS.get(env_id, {}),
-        model_based_defaults=MODEL_BASED_DEFAULTS.get(env_id, {}),
+        defaults={**cut, **DEFAULTS.get(env_id, {})},
+        model_based_defaults={**cut, **MODEL_BASED_DEFAULTS.get(env_id, {})},
     )
     if threshold is None:
         return entry

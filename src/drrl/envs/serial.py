@@ -1,7 +1,8 @@
 """Gymnasium's envs, one per slot, stepped in turn: the engine for any registered id, with nothing else installed.
 
 The same envs and seeds as Gymnasium's ``SyncVectorEnv``, so the same episodes, but an ended episode's env is not
-stepped again (``EpisodeSlots``).
+stepped again (``EpisodeSlots``). An env that observes discrete values or tuples of them (FrozenLake's cell,
+Blackjack's hand) is seen through Gymnasium's ``FlattenObservation``: a Discrete value one-hot, parts concatenated.
 """
 
 from __future__ import annotations
@@ -11,9 +12,20 @@ from typing import Any
 
 import gymnasium
 import numpy as np
+from gymnasium import spaces
+from gymnasium.wrappers import FlattenObservation
 
 from drrl.envs.registry import lookup
 from drrl.envs.slots import EpisodeSlots
+
+FLATTENED = (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary, spaces.Tuple, spaces.Dict)
+
+
+def make_env(env_id: str, options: Mapping[str, Any] | None = None) -> gymnasium.Env:
+    """``gymnasium.make(env_id, **options)``, its observations flattened into a 1-D Box if they are discrete or
+    composite (a Box of any shape is left as it is: frames are read by a model-based run)."""
+    env = gymnasium.make(env_id, disable_env_checker=True, **(options or {}))
+    return FlattenObservation(env) if isinstance(env.observation_space, FLATTENED) else env
 
 
 class SerialEpisodes(EpisodeSlots):
@@ -24,7 +36,7 @@ class SerialEpisodes(EpisodeSlots):
         self.envs = []
         try:
             for _ in range(num_envs):
-                self.envs.append(gymnasium.make(env_id, disable_env_checker=True, **(options or {})))
+                self.envs.append(make_env(env_id, options))
         except BaseException:
             self.close_extras()
             raise

@@ -32,7 +32,10 @@ Departures from the thesis, and why
     * Flat fitness: when every candidate of a generation earned the same return (e.g. every one drives its action
       to the same bound, so all fail alike), the estimate is zero and μ and σ would never move again. μ then stays
       and σ grows by the largest step allowed, σ ← σ · (1 + c), until the candidates differ, as CMA-ES does on flat
-      fitness (Hansen, "The CMA Evolution Strategy: A Tutorial"). The generation's metrics say "tied".
+      fitness (Hansen, "The CMA Evolution Strategy: A Tutorial"), but to at most ``FLAT_FITNESS_SIGMA_LIMIT`` times
+      σ₀: a task that pays nothing until a goal is found (FrozenLake, MountainCar) would otherwise widen σ for as
+      long as no candidate finds it, beyond where μ's steps could ever matter again. The generation's metrics say
+      "tied".
     * With fitness shaping, every formula sees the shaped values. Centred ranks sum to zero, so b, initialised to
       their mean, stays 0: SyS with centred ranks has the natural baseline 0.
 """
@@ -64,6 +67,7 @@ STATE_KEYS = {
     "optimizer_state",
 }  # plus "pending_noise" between an ask and its tell
 
+FLAT_FITNESS_SIGMA_LIMIT = 100.0  # σ grows on flat fitness to at most this many times σ₀ (module docstring)
 HALF_NORMAL_MEDIAN = 0.6744897501960817  # Φ⁻¹(3/4): the median of |ε| for ε ~ N(0, 1)
 _MIRROR_C1, _MIRROR_C2, _MIRROR_C3 = -0.06655, -0.9706, 0.124  # Sehnke 2013's fit of the mirror map
 
@@ -158,6 +162,7 @@ class PGPE(Search):
         self.sigma_lr = sigma_lr
         self.baseline_decay = baseline_decay
         self.max_sigma_change = max_sigma_change
+        self.sigma_init = float(sigma_init)
         self._mu = center.detach().to(torch.float32).clone().requires_grad_(True)
         self._sigma = torch.full_like(self._mu.detach(), float(sigma_init))
         self._optimizer = make_optimizer(optimizer, [self._mu], center_lr, optimizer_options)
@@ -210,7 +215,8 @@ class PGPE(Search):
         old_mu = self._mu.detach().clone()
         tied = bool((fitness == fitness[0]).all())
         if tied:
-            self._sigma = self._sigma * (1 + self.max_sigma_change)
+            widest = FLAT_FITNESS_SIGMA_LIMIT * self.sigma_init
+            self._sigma = torch.maximum(self._sigma, (self._sigma * (1 + self.max_sigma_change)).clamp(max=widest))
         else:
             grad_mu, grad_sigma = self._gradients(shaped, self._noise)
             self._step_center(grad_mu)
