@@ -131,7 +131,8 @@ def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
     assert int(metrics(out)[-1]["real_steps"]) == 8 * 200
     assert (
         "the centre met none of Pendulum-v1's criteria (solved); settings that suit it: --search cmaes --policy "
-        "mlp:16 --popsize 64 --episodes-per-candidate 8 --budget 51200"  # its own defaults, where the run set others
+        "mlp:16 --popsize 64 --episodes-per-candidate 8 --budget 51200; or model-based, with settings measured on it: "
+        "drrl train Pendulum-v1 --model-based"  # its own defaults where the run set others, and its model-based ones
     ) in result.output
     evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "2"])
     assert "±" in evaluation.output and "balanced" not in evaluation.output
@@ -142,6 +143,7 @@ def test_a_model_based_run_that_misses_is_told_the_env_s_own_model_based_setting
     result, _ = train(tmp_path, "Pendulum-v1", "--model-based", "--budget", "2", "--generations", "1", "--quiet")
     assert result.exit_code == 0, result.output
     assert "the centre met none of Pendulum-v1's criteria (solved); settings that suit it: --budget 30" in result.output
+    assert "--model-based" not in result.output.split("settings that suit it")[1]
 
 
 def test_a_run_with_the_env_s_own_settings_is_told_what_helps_a_run_of_its_kind():

@@ -279,13 +279,16 @@ def overridden_defaults(setup: Setup) -> dict:
 def advice_after_a_miss(setup: Setup) -> str:
     """What to try after a run whose centre met none of the task's criteria: the settings that suit the task (the
     entry's own, else the env's defaults the run set otherwise), or with none, what most often helps a run of its
-    kind."""
+    kind; after a model-free run, a model-based one where drrl has model-based settings for the env."""
     suggested = setup.entry.suggested or overridden_defaults(setup)
-    if not suggested:
-        return GENERIC_ADVICE[setup.world.kind]
-    return "settings that suit it: " + " ".join(
-        f"--{name.replace('_', '-')} {value}" for name, value in suggested.items()
-    )
+    advice = GENERIC_ADVICE[setup.world.kind]
+    if suggested:
+        advice = "settings that suit it: " + " ".join(
+            f"--{name.replace('_', '-')} {value}" for name, value in suggested.items()
+        )
+    if setup.world.kind == "model-free" and setup.entry.model_based_defaults:
+        advice += f"; or model-based, with settings measured on it: drrl train {setup.entry.env_id} --model-based"
+    return advice
 
 
 def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Counters | None = None) -> None:
