@@ -15,6 +15,7 @@ from drrl.envs import pool
 from drrl.envs.batch import choose_engine, make_batch_env
 from drrl.envs.cores import available_cores
 from drrl.envs.processes import ProcessEpisodes
+from drrl.envs.rendered import rendering_env
 from drrl.policies import linear
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
@@ -118,6 +119,7 @@ def test_discrete_and_tuple_observations_are_seen_one_hot_and_an_env_without_a_t
     observations, _ = lake.reset(seed=[0, 1, 2])
     cells = [gymnasium.make("FrozenLake-v1").reset(seed=seed)[0] for seed in (0, 1, 2)]
     assert np.array_equal(observations, np.eye(16)[cells])
+    assert rendering_env("FrozenLake-v1").observation_space.shape == (16,)  # drrl render sees what training saw
     blackjack = make_batch_env("Blackjack-v1", 2)
     assert blackjack.single_observation_space.shape == (32 + 11 + 2,)
     assert blackjack.reset(seed=[4, 5])[0].sum(axis=1).tolist() == [3, 3]  # one hot per part

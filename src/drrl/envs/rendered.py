@@ -28,6 +28,7 @@ from drrl.envs.batch import cannot_be_made
 from drrl.envs.baxter.model import import_mujoco
 from drrl.envs.pixels import FRAME_SIZE, FRAMES, PIXELS_MODEL_BASED_SETTINGS
 from drrl.envs.registry import EnvEntry, lookup, register, register_family
+from drrl.envs.serial import make_env
 
 PREFIX = "Pixels/"
 LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)  # ITU-R BT.601
@@ -69,7 +70,7 @@ def rendering_env(env_id: str, options: dict[str, Any] | None = None) -> gymnasi
     """``env_id`` made to draw rgb_array frames headless with ``options``; a ValueError saying why it cannot."""
     headless(env_id)
     try:
-        return gymnasium.make(env_id, render_mode="rgb_array", **(options or {}))
+        return make_env(env_id, {"render_mode": "rgb_array", **(options or {})})
     except TypeError as error:  # an option this env does not take, e.g. shadows for the cart-pole
         raise ValueError(f"{env_id} cannot render with {options}: {error}") from None
     except (ImportError, gymnasium.error.DependencyNotInstalled) as error:
