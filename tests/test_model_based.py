@@ -170,12 +170,29 @@ def test_with_one_real_episode_an_iteration_there_is_no_explorer_to_choose():
     assert rows[1.0] == rows[0.0]
 
 
-def test_the_overshooting_horizon_shrinks_while_episodes_are_short():
-    short = EpisodeBuffer(
-        [Episode(np.zeros((9, 4), np.float32), np.zeros((8, 1), np.float32), np.zeros(8, np.float32), True)]
-    )
-    settings = fitting_settings(FitSettings(unfold=2, overshoot=16), short)
+def test_the_window_shrinks_while_episodes_are_short_first_its_overshooting_then_its_unfolding(tmp_path):
+    def lasting(*steps):
+        return EpisodeBuffer(
+            [
+                Episode(np.zeros((n + 1, 4), np.float32), np.zeros((n, 1), np.float32), np.zeros(n, np.float32), True)
+                for n in steps
+            ]
+        )
+
+    settings = fitting_settings(FitSettings(unfold=2, overshoot=16), lasting(8, 3))
     assert settings.overshoot == 6 and settings.unfold == 2
+    settings = fitting_settings(FitSettings(unfold=4, overshoot=16), lasting(1, 3, 2))
+    assert settings.overshoot == 0 and settings.unfold == 3
+    assert fitting_settings(FitSettings(unfold=4, overshoot=16), lasting(20, 3)) == FitSettings(unfold=4, overshoot=16)
+    # a hand of Blackjack lasts one to three steps: a model-based run fits its model all the same
+    result = CliRunner().invoke(
+        main,
+        ["train", "Blackjack-v1", "--model-based", "--budget", "4", "--generations", "2", "--max-steps", "5", "--quiet"]
+        + ["--eval-episodes", "2", "--out", str(tmp_path / "hands")],
+    )
+    assert result.exit_code == 0, result.output
+    rows = list(csv.DictReader((tmp_path / "hands" / "metrics.csv").open()))
+    assert [int(row["real_episodes"]) for row in rows] == [2, 4] and all(row["overshoot"] == "0" for row in rows)
 
 
 def test_a_model_based_baxter_run_starts_from_the_linear_model_of_its_joints(tmp_path):

@@ -444,9 +444,11 @@ def collect(
 
 
 def fitting_settings(settings: FitSettings, buffer: EpisodeBuffer) -> FitSettings:
-    """``settings`` with the overshooting horizon shortened while every real episode so far is shorter than one
-    window (the first episodes of a falling pole can be); the iteration's row reports the horizon used."""
+    """``settings`` with the window shortened while every real episode so far is shorter than one (the first
+    episodes of a falling pole can be; a hand of Blackjack lasts one to three steps): first the overshooting
+    horizon, then the unfolded steps; the iteration's row reports the horizon used."""
     longest = max(len(episode) for episode in buffer.episodes)
     if longest >= settings.unfold + settings.overshoot:
         return settings
-    return dataclasses.replace(settings, overshoot=max(0, longest - settings.unfold))
+    unfold = min(settings.unfold, longest)
+    return dataclasses.replace(settings, unfold=unfold, overshoot=longest - unfold)
