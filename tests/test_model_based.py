@@ -185,13 +185,11 @@ def test_the_window_shrinks_while_episodes_are_short_first_its_overshooting_then
     assert settings.overshoot == 0 and settings.unfold == 3
     assert fitting_settings(FitSettings(unfold=4, overshoot=16), lasting(20, 3)) == FitSettings(unfold=4, overshoot=16)
     # a hand of Blackjack lasts one to three steps: a model-based run fits its model all the same
-    result = CliRunner().invoke(
-        main,
-        ["train", "Blackjack-v1", "--model-based", "--budget", "4", "--generations", "2", "--max-steps", "5", "--quiet"]
-        + ["--eval-episodes", "2", "--out", str(tmp_path / "hands")],
-    )
+    hands = tmp_path / "hands"
+    arguments = ["Blackjack-v1", "--model-based", "--budget", "4", "--generations", "2", "--max-steps", "5"]
+    result = CliRunner().invoke(main, ["train", *arguments, "--eval-episodes", "2", "--quiet", "--out", str(hands)])
     assert result.exit_code == 0, result.output
-    rows = list(csv.DictReader((tmp_path / "hands" / "metrics.csv").open()))
+    rows = list(csv.DictReader((hands / "metrics.csv").open()))
     assert [int(row["real_episodes"]) for row in rows] == [2, 4] and all(row["overshoot"] == "0" for row in rows)
 
 
