@@ -18,7 +18,13 @@ from gymnasium.wrappers import FlattenObservation
 from drrl.envs.registry import lookup
 from drrl.envs.slots import EpisodeSlots
 
-FLATTENED = (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary, spaces.Tuple, spaces.Dict)
+FLATTENED = (
+    spaces.Discrete,
+    spaces.MultiDiscrete,
+    spaces.MultiBinary,
+    spaces.Tuple,
+    spaces.Dict,
+)  # flattened, Discrete one-hot
 
 
 def make_env(env_id: str, options: Mapping[str, Any] | None = None) -> gymnasium.Env:
