@@ -18,13 +18,8 @@ from gymnasium.wrappers import FlattenObservation
 from drrl.envs.registry import lookup
 from drrl.envs.slots import EpisodeSlots
 
-FLATTENED = (
-    spaces.Discrete,
-    spaces.MultiDiscrete,
-    spaces.MultiBinary,
-    spaces.Tuple,
-    spaces.Dict,
-)  # flattened, Discrete one-hot
+# observation spaces flattened into one 1-D Box, a Discrete value one-hot
+FLATTENED = (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary, spaces.Tuple, spaces.Dict)
 
 
 def make_env(env_id: str, options: Mapping[str, Any] | None = None) -> gymnasium.Env:
