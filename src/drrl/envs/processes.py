@@ -56,7 +56,7 @@ def _serve(connection, env_id: str, num_envs: int, options: dict[str, Any]) -> N
 
 
 class ProcessEpisodes(EpisodeSlots):
-    """``num_envs`` copies of ``gymnasium.make(env_id, **options)`` over ``workers`` processes (default: one per
+    """``num_envs`` copies of ``make_env(env_id, options)`` over ``workers`` processes (default: one per
     core this process may use, at most one per env), worker w holding slots w, w + W, ...."""
 
     def __init__(

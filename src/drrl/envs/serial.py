@@ -30,7 +30,7 @@ def make_env(env_id: str, options: Mapping[str, Any] | None = None) -> gymnasium
 
 
 class SerialEpisodes(EpisodeSlots):
-    """``num_envs`` copies of ``gymnasium.make(env_id, **options)``."""
+    """``num_envs`` copies of ``make_env(env_id, options)``."""
 
     def __init__(self, env_id: str, num_envs: int, options: Mapping[str, Any] | None = None):
         lookup(env_id)  # registers a family's id (drrl.envs.registry) in this process, a worker's too
