@@ -160,6 +160,20 @@ def test_model_free_cmaes_improves_the_cartpole_and_resumes_exactly(tmp_path):
     assert metrics(tmp_path / "stopped") == metrics(tmp_path / "whole")
 
 
+def test_a_run_resumes_exactly_across_a_restart_with_fresh_observation_statistics(tmp_path):
+    config = TrainConfig(restart_every=4, budget=80, observation_norm=True, checkpoint_every=1, seed=2)
+    whole = train(config, tmp_path / "whole")
+    assert whole.generations == 10
+    with pytest.raises(KeyboardInterrupt):
+        run(prepare(config), [*subscribers(RunFolder.create(tmp_path / "stopped"), progress=False), StopAfter(6)])
+    resume(tmp_path / "stopped")
+    assert metrics(tmp_path / "stopped") == metrics(tmp_path / "whole")
+    written = metrics(tmp_path / "whole")
+    moments = RunFolder(tmp_path / "whole").load_checkpoint()["world"]["observation_moments"]
+    since_restart = int(written[-1]["real_steps"]) - int(written[7]["real_steps"])  # generations 9 and 10
+    assert int(torch.as_tensor(moments["count"]).sum()) == since_restart
+
+
 def test_tensorboard_logs_every_metric_against_real_episodes(tmp_path):
     pytest.importorskip("tensorboard")
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator

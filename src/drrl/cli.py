@@ -111,6 +111,12 @@ def main(ctx: click.Context, debug: bool) -> None:
 @setting("checkpoint_every", INTEGER, "generations between checkpoints")
 @setting("stop_when_solved", click.BOOL, "end the run once a measured centre meets every criterion of the task")
 @setting(
+    "restart_every",
+    INTEGER,
+    "generations an attempt of a model-free search lasts; unless its last centre meets every criterion of the task "
+    "(the run then ends), the search starts again from a new random centre",
+)
+@setting(
     "demonstrations",
     INTEGER,
     "real episodes of the env's scripted demonstrator (the stacking tasks' with end-point actions) that the first "
@@ -319,10 +325,15 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
         else ""
     )
     if solved(setup, counters):
+        why = (
+            "stop_when_solved"
+            if setup.config.stop_when_solved
+            else f"the end of attempt {counters.rows[-1]['attempt']}"
+        )
         click.echo(
             f"solved: the centre of {unit} {counters.iteration} met every criterion of {setup.entry.env_id}; the run "
-            f"stopped there (stop_when_solved), {setup.world.real_budget - counters.real_episodes} real episodes "
-            f"of the budget unspent"
+            f"stopped there ({why}), {setup.world.real_budget - counters.real_episodes} real episodes of the budget "
+            f"unspent"
         )
     click.echo(
         f"done: {counters.iteration} {unit}s, {counters.real_episodes} real episodes, "

@@ -12,7 +12,7 @@ import click
 from pydantic import ValidationError
 
 from drrl.cli_params import INTEGER
-from drrl.compare import DEFAULT_METHODS, METHODS, MODEL_BASED, PPO, compare, method_config
+from drrl.compare import DEFAULT_METHODS, METHODS, MODEL_BASED, PPO, compare, curve_budget, method_config
 from drrl.config import describe_errors, env_defaults, load_config_file
 from drrl.envs.batch import is_frames, make_batch_env
 from drrl.models.kinds import MODEL_KINDS
@@ -128,7 +128,7 @@ def observes_frames(env: str) -> bool:
     "--budget",
     type=click.IntRange(min=1),
     help="real training episodes of each model-free run (PGPE, REINFORCE, eNAC, PPO)  "
-    f"[default: {COMPARE_BUDGET}, or the env's own budget where it has one]",
+    f"[default: {COMPARE_BUDGET}, or the env's own budget where it has one, one attempt's where its runs restart]",
 )
 @click.option(
     "--model-based-budget",
@@ -166,7 +166,7 @@ def compare_command(env, seeds, budget, model_based_budget, methods, config_file
         raise click.UsageError(str(error)) from None
     settings["env"] = env
     if budget is None:
-        budget = env_defaults(env).get("budget", COMPARE_BUDGET)
+        budget = curve_budget(env, COMPARE_BUDGET)
     if model_based_budget is None:
         model_based_budget = env_defaults(env, model_based=True).get("budget", MODEL_BASED_DEFAULTS["budget"])
     frames = observes_frames(env)

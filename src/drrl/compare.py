@@ -75,6 +75,7 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
         )
     merged = {
         "eval_share": 1.0,
+        "restart_every": None,  # a curve follows one search; restarts would start it again
         **base,
         "search": "pgpe",
         "sampler": MODEL_FREE[method],
@@ -84,6 +85,16 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
     if merged["sampler"] == "supersymmetric" and merged.get("popsize", 8) % 4:
         merged["popsize"] = 8
     return TrainConfig.model_validate(merged)
+
+
+def curve_budget(env: str, default: int) -> int:
+    """The real episodes a model-free curve on ``env`` spends unless told: the env's own budget, one attempt's where
+    its runs restart (Pendulum-v1's), else ``default``."""
+    own = env_defaults(env)
+    if own.get("restart_every"):
+        config = TrainConfig.model_validate({"env": env})
+        return int(own["restart_every"]) * config.episodes_per_generation
+    return int(own.get("budget", default))
 
 
 def run_method(method: str, seed: int, budget: int, settings: dict) -> list[tuple[int, float]]:

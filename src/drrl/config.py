@@ -144,6 +144,13 @@ class TrainConfig(BaseModel):
         description="end the run once a measured centre meets every criterion of the task's verdict, the real "
         "episodes left unspent",
     )
+    restart_every: int | None = Field(
+        None,
+        ge=1,
+        le=10**9,
+        description="generations an attempt of a model-free search lasts: unless its last centre, measured then, meets "
+        "every criterion of the task (and the run ends), the search starts again from a new random centre and seed",
+    )
     max_steps: int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
     reward_shift: float = Field(
         0.0,
@@ -261,6 +268,16 @@ class TrainConfig(BaseModel):
             raise ValueError(
                 "demonstrations give the first centre, a policy that reads raw observations: not with start_from "
                 "or observation_norm"
+            )
+        if self.restart_every is not None and (
+            self.model_based is not None
+            or self.search in POLICY_GRADIENTS
+            or self.demonstrations
+            or self.start_from is not None
+        ):
+            raise ValueError(
+                "restart_every starts a model-free parameter search (pgpe, cmaes) again from a new random centre: not "
+                "with model_based, an action-space policy gradient, demonstrations or start_from"
             )
         if self.model_based is not None and self.env_schedule is not None:
             raise ValueError("env_schedule is for model-free runs; a model-based run learns the env as registered")

@@ -36,7 +36,8 @@ from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, evaluate
 from drrl.search.base import Search
 
-TRAINING, MEASURING, DEMONSTRATING = 0, 1, 2  # independent random streams for training, measuring, demonstrations
+# independent random streams for training, measuring, demonstrations and restarted searches
+TRAINING, MEASURING, DEMONSTRATING, RESTARTING = 0, 1, 2, 3
 COUNTS = (
     "iteration",
     "generations",
@@ -227,11 +228,18 @@ def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters
 
 
 def solved(setup: Setup, counters: Counters) -> bool:
-    """Whether a run with ``stop_when_solved`` is done before its budget: its last step's measured centre met every
-    criterion of the task's verdict. Real episodes are the currency: none is spent past a solved centre."""
+    """Whether a run is done before its budget: its last step's measured centre met every criterion of the task's
+    verdict, and the run stops there (``stop_when_solved``: real episodes are the currency, none is spent past a
+    solved centre) or that step ended an attempt (``restart_every``)."""
     criteria = setup.entry.criteria()
     last = counters.rows[-1] if counters.rows else {}
-    return setup.config.stop_when_solved and bool(criteria) and all(last.get(name) == 1 for name in criteria)
+    met = bool(criteria) and all(last.get(name) == 1 for name in criteria)
+    return met and (setup.config.stop_when_solved or attempt_ended(setup.config, counters.iteration))
+
+
+def attempt_ended(config: TrainConfig, iteration: int) -> bool:
+    """Whether step ``iteration`` is the last of an attempt of a run with ``restart_every``."""
+    return config.restart_every is not None and iteration > 0 and iteration % config.restart_every == 0
 
 
 def measure(policy: Policy, center: torch.Tensor, env: VectorEnv, max_steps: int | None, seed: int) -> Evaluation:

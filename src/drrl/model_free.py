@@ -13,6 +13,15 @@ observations before this generation (``drrl.rollout.moments``; not in the thesis
 normalisation folded into their first layer (``fold_input``), so backends, measuring
 and ``drrl eval`` see plain policies, and the best centre is kept as the env ran it.
 
+With ``restart_every`` (restarts, not in the thesis; as IPOP-CMA-ES restarts, Auger & Hansen 2005, without growing
+the population) the run is a series of attempts of that many generations, each measured at its end: after an
+attempt whose last centre does not meet every criterion of the task, the search starts again from a new random
+centre and seed (``derive_seed(seed, attempt, RESTARTING)``), the observation statistics anew; after one whose centre
+does, the run ends (its last centre, not its best: the best of many noisy measurements flatters a search that
+stalled just short of the level). A search that settles in a local optimum (Pendulum-v1's spinning pendulum)
+stays there however long it runs; an attempt from elsewhere may not. The first attempt is the run without restarts,
+to the step.
+
 With ``env_schedule`` (a curriculum, not in the thesis) each generation's training episodes run on the env made with
 the schedule's value of its option for the budget spent so far, or for the steps its generations have earned (kept
 in the checkpoint), so a resumed run continues it exactly. Measuring runs on the env as registered.
@@ -21,12 +30,13 @@ in the checkpoint), so a resumed run continues it exactly. Measuring runs on the
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import torch
 
 from drrl.config import TrainConfig
 from drrl.envs.batch import RegisteredEnv
-from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
+from drrl.loop import TRAINING, Counters, Learner, Setup, World, attempt_ended, derive_seed, run_generation
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload
 from drrl.rollout.moments import Moments
@@ -34,12 +44,23 @@ from drrl.search.base import Search
 
 
 class ModelFree(World):
-    """Every generation on the real environment, through ``backend`` (here, or on a Ray cluster)."""
+    """Every generation on the real environment, through ``backend`` (here, or on a Ray cluster); with
+    ``restart_every``, ``new_search(attempt)`` is each later attempt's search."""
 
     kind, unit = "model-free", "generation"
 
-    def __init__(self, config: TrainConfig, policy: Policy, backend: Backend, workload: Workload):
+    def __init__(
+        self,
+        config: TrainConfig,
+        policy: Policy,
+        backend: Backend,
+        workload: Workload,
+        new_search: Callable[[int], Search] | None = None,
+    ):
+        if config.restart_every is not None and new_search is None:
+            raise ValueError("restart_every needs new_search, to build each attempt's search")
         self.config, self.policy, self.backend, self.workload = config, policy, backend, workload
+        self.new_search = new_search
         self.moments = Moments.empty(1, policy.observation_size) if config.observation_norm else None
         self.stage = 0  # steps an adaptive env_schedule has taken
 
@@ -53,6 +74,9 @@ class ModelFree(World):
 
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         scheduled = self.follow_schedule(counters)
+        attempt = self.attempt(iteration)
+        if attempt and attempt_ended(self.config, iteration - 1):
+            setup.search = self.restarted(setup.search, attempt)
         search = setup.search
         assert isinstance(search, Search)
         try:
@@ -70,7 +94,23 @@ class ModelFree(World):
         schedule = self.config.env_schedule
         if schedule is not None and schedule.advance_at is not None:
             self.stage += int(self.stage < schedule.steps and float(result.returns.median()) >= schedule.advance_at)
-        return counted(counters, iteration, result) | {"sigma_norm": metrics["sigma_norm"], **scheduled}
+        row = counted(counters, iteration, result) | {"sigma_norm": metrics["sigma_norm"], **scheduled}
+        return row | ({} if self.config.restart_every is None else {"attempt": attempt + 1})
+
+    def attempt(self, iteration: int) -> int:
+        """The attempt (0, 1, …) generation ``iteration`` belongs to; 0 without restarts."""
+        every = self.config.restart_every
+        return 0 if every is None else (iteration - 1) // every
+
+    def restarted(self, search: Learner, attempt: int) -> Search:
+        """Attempt ``attempt``'s new search, counting its generations on from ``search``'s; observation statistics
+        start again."""
+        assert self.new_search is not None
+        fresh = self.new_search(attempt)
+        fresh.generation = search.generation
+        if self.moments is not None:
+            self.moments = Moments.empty(1, self.policy.observation_size)
+        return fresh
 
     def follow_schedule(self, counters: Counters) -> dict[str, float]:
         """Point the backend at the env of this generation's scheduled option, if any; the option's value."""
@@ -87,11 +127,11 @@ class ModelFree(World):
         return {schedule.option: value}
 
     def measure_due(self, iteration: int, counters: Counters) -> bool:
-        """After the last generation; else every ``eval_every`` generations if measuring now keeps the steps spent
-        measuring within ``eval_share`` of all, a measurement expected to cost as much as the earlier ones on
-        average (before any: ``eval_episodes`` episodes as long as the training episodes so far)."""
+        """After the last generation and an attempt's last; else every ``eval_every`` generations if measuring now
+        keeps the steps spent measuring within ``eval_share`` of all, a measurement expected to cost as much as the
+        earlier ones on average (before any: ``eval_episodes`` episodes as long as the training episodes so far)."""
         config = self.config
-        if iteration == self.iterations:
+        if iteration == self.iterations or attempt_ended(config, iteration):
             return True
         if iteration % config.eval_every:
             return False

@@ -82,8 +82,9 @@ class ProgressBar(Subscriber):
             "centre": row["center_return"],
             "model": row.get("imagined_center_return"),
         }
+        attempt = f" (attempt {row['attempt']})" if "attempt" in row else ""
         self.bar.set_postfix_str(
-            f"{setup.world.unit} {counters.iteration} | "
+            f"{setup.world.unit} {counters.iteration}{attempt} | "
             + " ".join(
                 f"{name} {value:.1f}" for name, value in shown.items() if value is not None and not math.isnan(value)
             ),

@@ -25,6 +25,7 @@ from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, is_frames, 
 from drrl.envs.registry import EnvEntry, is_own, lookup
 from drrl.loop import (
     DEMONSTRATING,
+    RESTARTING,
     Counters,
     Learner,
     Setup,
@@ -45,6 +46,7 @@ from drrl.rollout import Workload, make_backend
 from drrl.rollout.local import LocalBackend
 from drrl.runs import RunFolder
 from drrl.search import make_search
+from drrl.search.base import Search
 from drrl.subscribers import ModelGuard, ProgressBar, RunFolderWriter, TensorBoardLogger
 
 
@@ -103,6 +105,16 @@ def build_search(config: TrainConfig, policy: Policy, discrete: bool, center: to
     return make_search(
         config.search, center, popsize=config.popsize, sigma_init=config.sigma_init, seed=config.seed, **pgpe
     )
+
+
+def restarted_search(config: TrainConfig, policy: Policy, attempt: int) -> Search:
+    """Attempt ``attempt``'s search of a run with ``restart_every``: the run's, from the policy's initial centre and
+    the search's seed both drawn anew."""
+    search = build_search(
+        config.model_copy(update={"seed": derive_seed(config.seed, attempt, RESTARTING)}), policy, False
+    )
+    assert isinstance(search, Search)
+    return search
 
 
 def memory_needed(config: TrainConfig, policy: Policy) -> int:
@@ -166,8 +178,9 @@ def prepare(
     world model (``transferred``), one with ``config.demonstrations`` from the clone of the env's demonstrator
     (``demonstrated_start``; ``progress`` shows its episodes)."""
     entry = lookup(config.env)
-    if config.stop_when_solved and not entry.criteria():
-        raise ValueError(f"stop_when_solved: {entry.env_id} has no verdict (no solved level) to stop at")
+    for name in ("stop_when_solved", "restart_every"):
+        if getattr(config, name) and not entry.criteria():
+            raise ValueError(f"{name}: {entry.env_id} has no verdict (no solved level) to stop at")
     if config.search in POLICY_GRADIENTS and backend != "local":
         raise ValueError(f"search {config.search} runs its episodes here; use the local backend (--backend local)")
     config = resolved(config, entry.env_id)
@@ -207,7 +220,9 @@ def prepare(
         elif isinstance(evaluator, LocalBackend) and config.search in POLICY_GRADIENTS:
             world = ActionSpace(config, policy, evaluator, workload)
         else:
-            world = ModelFree(config, policy, evaluator, workload)
+            world = ModelFree(
+                config, policy, evaluator, workload, lambda attempt: restarted_search(config, policy, attempt)
+            )
     except BaseException:
         evaluator.close()
         eval_env.close()
