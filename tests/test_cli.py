@@ -131,7 +131,7 @@ def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
     assert int(metrics(out)[-1]["real_steps"]) == 8 * 200
     assert (
         "the centre met none of Pendulum-v1's criteria (solved); settings that suit it: --search cmaes --policy "
-        "mlp:16 --popsize 64 --episodes-per-candidate 8 --budget 51200; or model-based, with settings measured on it: "
+        "mlp:16 --popsize 64 --episodes-per-candidate 8 --budget 409600; or model-based, with settings measured on it: "
         "drrl train Pendulum-v1 --model-based"  # its own defaults where the run set others, and its model-based ones
     ) in result.output
     evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "2"])
