@@ -11,6 +11,7 @@ from click.testing import CliRunner
 from drrl.cli import main
 from drrl.compare import curve_budget, method_config
 from drrl.config import TrainConfig
+from drrl.runs import RunFolder, learning_curve
 from drrl.train import train
 
 CRITERIA = ("balanced", "near_optimal")  # the thesis cart-pole's verdict
@@ -36,6 +37,12 @@ def test_the_run_ends_after_the_first_attempt_whose_best_centre_solves_the_task(
     assert written[-1] is ends[-1] and int(written[-1]["real_episodes"]) < SOLVING.budget
     assert all(ends[-1][name] == "1" for name in CRITERIA)
     assert not any(all(row[name] == "1" for name in CRITERIA) for row in written[:-40])  # earlier attempts missed
+
+
+def test_the_learning_curve_marks_every_restart(solving):
+    figure = learning_curve(RunFolder(solving).read_metrics(), "restarts")
+    marks = [line for line in figure.axes[0].lines if line.get_linestyle() == ":"]
+    assert [line.get_xdata()[0] for line in marks] == [320, 640, 960]  # after attempts 1-3, 8 episodes a generation
 
 
 def test_each_attempt_starts_from_a_new_centre_and_the_first_is_the_run_without_restarts(solving, tmp_path):

@@ -193,7 +193,8 @@ def learning_curve(
 ):
     """The centre policy's return against real training episodes, as the thesis's Figure 5.2: the measured centre
     (its ``best_step``, the one ``drrl eval`` runs, marked), the training episodes' mean return (``training`` says
-    what that averages), and for a model-based run the centre's return inside the model. A matplotlib figure."""
+    what that averages), for a model-based run the centre's return inside the model, and where a run with restarts
+    started its search again. A matplotlib figure."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -225,6 +226,11 @@ def learning_curve(
         alpha=0.5,
         label=training or ("real episodes collected, mean" if model_based else "candidates, mean (one episode each)"),
     )
+    restarts = [
+        before["real_episodes"] for before, row in zip(rows, rows[1:]) if row.get("attempt") != before.get("attempt")
+    ]
+    for index, episodes in enumerate(restarts):
+        axes.axvline(episodes, ls=":", color="grey", label=None if index else "the search starts again (restart_every)")
     best = [r for r in measured if best_step is not None and int(r[step]) == best_step]
     if best:
         axes.plot(
