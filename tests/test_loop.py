@@ -174,6 +174,25 @@ def test_a_run_resumes_exactly_across_a_restart_with_fresh_observation_statistic
     assert int(torch.as_tensor(moments["count"]).sum()) == since_restart
 
 
+def test_the_loop_runs_torch_and_numpy_s_blas_on_one_thread_and_gives_their_threads_back():
+    from threadpoolctl import threadpool_info
+
+    seen = []
+
+    class Threads(Subscriber):
+        def row(self, setup, counters, row):
+            blas = {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+            seen.append((torch.get_num_threads(), blas))
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        run(prepare(TrainConfig(search="cmaes", budget=16)), [Threads()])
+        assert seen == [(1, {1})] * 2 and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_tensorboard_logs_every_metric_against_real_episodes(tmp_path):
     pytest.importorskip("tensorboard")
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator

@@ -29,6 +29,7 @@ from typing import Protocol
 import numpy as np
 import torch
 from gymnasium.vector import VectorEnv
+from threadpoolctl import threadpool_limits
 
 from drrl.config import TrainConfig
 from drrl.envs.registry import EnvEntry
@@ -204,7 +205,7 @@ def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters
         subscriber.started(setup, counters, snapshot)
     start = time.perf_counter() - counters.wall_time
     try:
-        with _sigterm_as_interrupt():
+        with _sigterm_as_interrupt(), one_thread():
             for iteration in range(counters.iteration + 1, setup.world.iterations + 1):
                 if solved(setup, counters):
                     break
@@ -244,7 +245,8 @@ def attempt_ended(config: TrainConfig, iteration: int) -> bool:
 
 def measure(policy: Policy, center: torch.Tensor, env: VectorEnv, max_steps: int | None, seed: int) -> Evaluation:
     """The centre policy μ over ``env.num_envs`` fresh episodes."""
-    return evaluate(policy, center[None], env, env.num_envs, seed=seed, max_steps=max_steps)
+    with one_thread():
+        return evaluate(policy, center[None], env, env.num_envs, seed=seed, max_steps=max_steps)
 
 
 def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
@@ -279,6 +281,21 @@ def better_center(met: dict[str, bool], center_return: float, best_criteria: int
     """Whether a measured centre beats the best one so far: more of the task's verdict criteria met (``met``),
     then a higher return. ``drrl eval`` runs the best one."""
     return (sum(met.values()), center_return) > (best_criteria, best_return)
+
+
+@contextmanager
+def one_thread():
+    """torch and NumPy's BLAS on one thread while training and measuring: drrl's arrays are small, where a second
+    thread costs more than it saves (Pendulum-v1's defaults on two cores: 81-88 s a run against 114-116 s), and a run's
+    numbers then do not depend on the cores of the machine it ran on (CMA-ES's linear algebra on two BLAS threads
+    gave the same seed other returns)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 @contextmanager

@@ -128,14 +128,6 @@ class ModelBased(World):
         return sum(self.sizes)
 
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        try:
-            return self.iterate(setup, counters, iteration)
-        finally:
-            torch.set_num_threads(threads)
-
-    def iterate(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         """Collect, fit, search in the model (module docstring); the iteration's metrics row."""
         config, search = self.config, setup.search
         assert isinstance(search, Search)
