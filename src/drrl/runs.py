@@ -15,6 +15,7 @@ import json
 import os
 import textwrap
 import weakref
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -227,7 +228,7 @@ def learning_curve(
         label=training or ("real episodes collected, mean" if model_based else "candidates, mean (one episode each)"),
     )
     restarts = [
-        before["real_episodes"] for before, row in zip(rows, rows[1:]) if row.get("attempt") != before.get("attempt")
+        before["real_episodes"] for before, row in pairwise(rows) if row.get("attempt") != before.get("attempt")
     ]
     for index, episodes in enumerate(restarts):
         axes.axvline(episodes, ls=":", color="grey", label=None if index else "the search starts again (restart_every)")
