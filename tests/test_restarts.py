@@ -1,6 +1,6 @@
 """Restarts (``restart_every``): attempts of a model-free search, each from a new random centre, until one ends
-with a centre that solves the task; the first attempt is the run without restarts, and a run resumes exactly
-across a restart."""
+with a centre that solves the task; the first attempt is the run without restarts (resuming across a restart:
+test_loop.py)."""
 
 import csv
 from pathlib import Path
@@ -30,7 +30,7 @@ def solving(tmp_path_factory) -> Path:
     return out
 
 
-def test_the_run_ends_after_the_first_attempt_whose_best_centre_solves_the_task(solving):
+def test_the_run_ends_after_the_first_attempt_whose_last_centre_solves_the_task(solving):
     written = rows(solving)
     assert [int(row["attempt"]) for row in written] == [(g - 1) // 40 + 1 for g in range(1, len(written) + 1)]
     ends = [row for row in written if int(row["generation"]) % 40 == 0]
