@@ -15,7 +15,7 @@ from drrl.cli_params import INTEGER
 from drrl.config import GYMNASIUM_DEFAULTS, TrainConfig, describe_errors, env_defaults, load_config_file
 from drrl.envs.batch import ENGINES, make_batch_env
 from drrl.envs.registry import aliases, lookup
-from drrl.loop import Counters, Setup, derive_seed, measure, run, solved
+from drrl.loop import Counters, Setup, derive_seed, measure, one_thread, run, solved
 from drrl.model_based import ModelDiverged
 from drrl.policies import ACCEPTED_FORMS
 from drrl.policy_gradient import POLICY_GRADIENTS
@@ -390,7 +390,8 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
         raise click.ClickException(f"{run_path}: {error}") from None
     step = checkpoint["iteration"] if final else checkpoint["best_iteration"]
     which = f"{'final' if final else 'best measured'} centre ({checkpoint.get('unit', 'generation')} {step})"
-    result = measure(policy, center, seen, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
+    with one_thread():
+        result = measure(policy, center, seen, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
     env.close()
     returns = result.episode_returns.flatten().numpy()
     click.echo(

@@ -244,9 +244,9 @@ def attempt_ended(config: TrainConfig, iteration: int) -> bool:
 
 
 def measure(policy: Policy, center: torch.Tensor, env: VectorEnv, max_steps: int | None, seed: int) -> Evaluation:
-    """The centre policy μ over ``env.num_envs`` fresh episodes."""
-    with one_thread():
-        return evaluate(policy, center[None], env, env.num_envs, seed=seed, max_steps=max_steps)
+    """The centre policy μ over ``env.num_envs`` fresh episodes (under ``one_thread``, as ``run`` holds it, for the
+    same numbers as in training)."""
+    return evaluate(policy, center[None], env, env.num_envs, seed=seed, max_steps=max_steps)
 
 
 def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
