@@ -295,6 +295,29 @@ def test_a_run_told_to_stop_when_solved_spends_no_real_episode_past_its_solved_c
     assert refused.exit_code == 2 and "stop_when_solved: Walker2d-v5 has no verdict" in refused.output
 
 
+def test_a_run_told_to_stop_after_solved_measurements_in_a_row_stops_at_the_first_such_streak(tmp_path):
+    first, _ = train(tmp_path, "cartpole", "--budget", "3000", "--eval-share", "1", "--stop-when-solved", "true")
+    result, out = train(
+        tmp_path,
+        "cartpole",
+        "--budget",
+        "3000",
+        "--eval-share",
+        "1",
+        "--stop-when-solved",
+        "true",
+        "--solved-in-a-row",
+        "3",
+        name="streak",
+    )
+    assert first.exit_code == 0 and result.exit_code == 0, result.output
+    assert "the run stopped there (stop_when_solved)" in result.output
+    solved = [all(row[name] == "1" for name in ("balanced", "near_optimal")) for row in metrics(out)]
+    assert all(solved[-3:])
+    assert not any(all(solved[i : i + 3]) for i in range(len(solved) - 3))
+    assert len(solved) > len(metrics(tmp_path / "run"))  # went on past its first solved centre
+
+
 def test_the_drrl_command_is_installed():
     drrl = Path(sys.executable).with_name("drrl")
     result = subprocess.run([drrl, "train", "--help"], capture_output=True, text=True, check=True)

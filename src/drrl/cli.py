@@ -110,6 +110,7 @@ def main(ctx: click.Context, debug: bool) -> None:
 @setting("seed", INTEGER, "random seed")
 @setting("checkpoint_every", INTEGER, "generations between checkpoints")
 @setting("stop_when_solved", click.BOOL, "end the run once a measured centre meets every criterion of the task")
+@setting("solved_in_a_row", INTEGER, "with --stop-when-solved: measurements in a row that must meet it first")
 @setting(
     "restart_every",
     INTEGER,

@@ -144,6 +144,13 @@ class TrainConfig(BaseModel):
         description="end the run once a measured centre meets every criterion of the task's verdict, the real "
         "episodes left unspent",
     )
+    solved_in_a_row: int = Field(
+        1,
+        ge=1,
+        le=1000,
+        description="with stop_when_solved: the measurements in a row whose centre must meet it before the run ends "
+        "(more than 1 where a centre that has only just reached the level may not hold it)",
+    )
     restart_every: int | None = Field(
         None,
         ge=1,

@@ -17,6 +17,7 @@ the step, or lives in a saved state.
 
 from __future__ import annotations
 
+import itertools
 import signal
 import threading
 import time
@@ -230,12 +231,21 @@ def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters
 
 def solved(setup: Setup, counters: Counters) -> bool:
     """Whether a run is done before its budget: its last step's measured centre met every criterion of the task's
-    verdict, and the run stops there (``stop_when_solved``: real episodes are the currency, none is spent past a
-    solved centre) or that step ended an attempt (``restart_every``)."""
+    verdict, and that step ended an attempt (``restart_every``) or the run stops there (``stop_when_solved``: real
+    episodes are the currency, none is spent past a solved centre) once the last ``solved_in_a_row`` measured
+    centres all met it."""
     criteria = setup.entry.criteria()
-    last = counters.rows[-1] if counters.rows else {}
-    met = bool(criteria) and all(last.get(name) == 1 for name in criteria)
-    return met and (setup.config.stop_when_solved or attempt_ended(setup.config, counters.iteration))
+    if not criteria or not counters.rows or not all(counters.rows[-1].get(name) == 1 for name in criteria):
+        return False
+    if attempt_ended(setup.config, counters.iteration):
+        return True
+    verdicts = (  # of the measured centres, newest first
+        all(row[name] == 1 for name in criteria)
+        for row in reversed(counters.rows)
+        if all(row.get(name) in (0, 1) for name in criteria)
+    )
+    recent = list(itertools.islice(verdicts, setup.config.solved_in_a_row))
+    return setup.config.stop_when_solved and len(recent) == setup.config.solved_in_a_row and all(recent)
 
 
 def attempt_ended(config: TrainConfig, iteration: int) -> bool:
