@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from drrl.config import TrainConfig
-from drrl.loop import Subscriber, run
+from drrl.envs.registry import lookup
+from drrl.loop import Counters, Subscriber, run, solved
 from drrl.models.settings import ModelBasedSettings
 from drrl.rollout.moments import Moments
 from drrl.runs import RunFolder
@@ -321,3 +322,19 @@ def test_the_search_is_told_returns_less_the_reward_shift_and_the_metrics_keep_t
         assert min(returns) >= 8  # the env's own returns: every episode lasts at least 8 steps
     (start, shifted), (other_start, unshifted) = centres
     assert torch.equal(start, shifted) and not torch.equal(other_start, unshifted)
+
+
+def test_solved_in_a_row_counts_measured_centres_only_and_needs_the_last_step_measured():
+    setup = SimpleNamespace(
+        entry=lookup("cartpole"), config=TrainConfig(env="cartpole", stop_when_solved=True, solved_in_a_row=2)
+    )
+    yes, no = {"balanced": 1.0, "near_optimal": 1.0}, {"balanced": 1.0, "near_optimal": 0.0}
+    unmeasured = {"balanced": float("nan"), "near_optimal": float("nan")}
+
+    def done(*rows):
+        return solved(setup, Counters(iteration=len(rows), rows=list(rows)))
+
+    assert done(yes, unmeasured, unmeasured, yes)
+    assert not done(no, unmeasured, yes)
+    assert not done(yes)
+    assert not done(yes, yes, unmeasured)
