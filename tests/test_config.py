@@ -72,6 +72,20 @@ def test_hopper_s_search_is_not_told_of_its_survival_bonus_and_other_envs_are_to
     assert TrainConfig(env="Walker2d-v5").reward_shift == TrainConfig().reward_shift == 0.0
 
 
+def test_reacher_s_model_free_run_searches_a_tanh_network_on_many_episodes_and_its_model_based_run_its_own():
+    reacher = TrainConfig(env="Reacher-v5")
+    assert (reacher.policy, reacher.popsize, reacher.episodes_per_candidate, reacher.budget) == (
+        "mlp:32",
+        32,
+        8,
+        409600,
+    )
+    assert (reacher.eval_episodes, reacher.eval_share, reacher.sigma_init) == (200, 0.1, 0.025)  # the rest: Gymnasium's
+    assert TrainConfig(env="Reacher-v5", budget=3200).budget == 3200  # given wins
+    model_based = TrainConfig(env="Reacher-v5", model_based={})
+    assert (model_based.budget, model_based.eval_episodes) == (160, TrainConfig().eval_episodes)
+
+
 def test_pendulum_s_model_based_run_starts_from_its_own_settings_which_its_config_file_spells_out():
     model_based = TrainConfig(env="Pendulum-v1", model_based={})
     assert (model_based.search, model_based.policy, model_based.sigma_init, model_based.budget) == (
