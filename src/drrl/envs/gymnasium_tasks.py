@@ -43,7 +43,7 @@ DEFAULTS: dict[str, dict] = {
     # A linear policy ends near -6.8: the torques that bring the fingertip to the target depend on the arm's angles
     # times the fingertip's offset, which a tanh MLP can form and a linear map cannot. One random target an episode
     # ranks candidates poorly, so 8 episodes each. The MLP climbs slowly: -5.2 on fresh episodes after 204,800
-    # episodes, -4.7 after 409,600 (8 minutes with EnvPool). Its centre is measured on 200 episodes (the best
+    # episodes, -4.7 after 409,600 (8 to 10 minutes with EnvPool). Its centre is measured on 200 episodes (the best
     # of many 50-episode measurements is chosen partly by luck), within a tenth of the run's steps.
     "Reacher-v5": {
         "policy": "mlp:32",
