@@ -264,13 +264,12 @@ def resume_run(
     run_and_report(setup, folder, attached, counters)
 
 
+LARGER_POLICY = "a larger --policy (mlp:32, mlp:64,64)"
 GENERIC_ADVICE = {  # after a miss with the env's own settings, by the run's kind (``World.kind``)
-    "model-free": "try a larger --budget, more --episodes-per-candidate, another --sigma-init or a larger --policy "
-    "(mlp:32, mlp:64,64)",
+    "model-free": f"try a larger --budget, more --episodes-per-candidate, another --sigma-init or {LARGER_POLICY}",
     "model-based": "try a larger --budget (real episodes), more --generations in the model, or another world model "
     "(--model-kind, --model-hidden, --ensemble 5)",
-    "action-space": "try a larger --budget, another --center-lr (its step size) or a larger --policy (mlp:32, "
-    "mlp:64,64)",
+    "action-space": f"try a larger --budget, another --center-lr (its step size) or {LARGER_POLICY}",
 }
 
 

@@ -234,18 +234,20 @@ def solved(setup: Setup, counters: Counters) -> bool:
     verdict, and that step ended an attempt (``restart_every``) or the run stops there (``stop_when_solved``: real
     episodes are the currency, none is spent past a solved centre) once the last ``solved_in_a_row`` measured
     centres all met it."""
-    criteria = setup.entry.criteria()
-    if not criteria or not counters.rows or not all(counters.rows[-1].get(name) == 1 for name in criteria):
+    criteria, config = setup.entry.criteria(), setup.config
+
+    def met(row: dict) -> bool:
+        return all(row.get(name) == 1 for name in criteria)
+
+    if not criteria or not counters.rows or not met(counters.rows[-1]):
         return False
-    if attempt_ended(setup.config, counters.iteration):
+    if attempt_ended(config, counters.iteration):
         return True
-    verdicts = (  # of the measured centres, newest first
-        all(row[name] == 1 for name in criteria)
-        for row in reversed(counters.rows)
-        if all(row.get(name) in (0, 1) for name in criteria)
-    )
-    recent = list(itertools.islice(verdicts, setup.config.solved_in_a_row))
-    return setup.config.stop_when_solved and len(recent) == setup.config.solved_in_a_row and all(recent)
+    if not config.stop_when_solved:
+        return False
+    measured = (row for row in reversed(counters.rows) if all(row.get(name) in (0, 1) for name in criteria))
+    recent = list(itertools.islice(measured, config.solved_in_a_row))  # the newest measured centres
+    return len(recent) == config.solved_in_a_row and all(map(met, recent))
 
 
 def attempt_ended(config: TrainConfig, iteration: int) -> bool:
