@@ -2,6 +2,12 @@ import gymnasium
 import pytest
 import torch
 from gymnasium import spaces
+from hypothesis import settings
+
+# Hypothesis's per-example deadline would make every property test a timed test, which a busy shared machine fails;
+# speed is measured in benchmarks/, not here
+settings.register_profile("untimed", deadline=None)
+settings.load_profile("untimed")
 
 
 class WordObserving(gymnasium.Env):
