@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
-from test_cartpole import C, discrete_lqr_gain, rk4_discretisation, upright_linearisation
+from test_cartpole import PHYSICS, C, discrete_lqr_gain, rk4_discretisation, upright_linearisation
 
 import drrl  # noqa: F401  (registers the environments)
 from drrl.envs.batch import make_batch_env
@@ -178,3 +178,29 @@ def test_swing_up_is_solvable_and_solved_asks_for_the_pole_held_up():
     assert circling == {"solved": False} and 100 < returns.mean() < 160
     hanging, returns = swing_up_verdict_of(lambda state: np.zeros((len(state), 1)))
     assert hanging == {"solved": False} and abs(returns.mean()) < 5
+
+
+@pytest.mark.parametrize(
+    "env_id, task",
+    [("drrl/CartPole-v0", BalanceTask()), *((env_id, task()) for env_id, _, task in VARIANTS)],
+)
+def test_each_cartpoles_declared_mirror_is_a_symmetry_of_its_physics_starts_and_reward(env_id, task):
+    # the physics stepped from the flipped state with the flipped force must give the declared mirror image of what
+    # it gives unflipped, paid and ended alike; and the flipped starts must be starts the task draws
+    rng = np.random.default_rng(0)
+    states = rng.normal(size=(400, 4)) * [1.5, 1.0, 2.0, 2.0]
+    forces = rng.uniform(-1, 1, 400)
+    after = PHYSICS.step(states.copy(), forces * C.max_force)
+    flipped_after = PHYSICS.step(-states, -forces * C.max_force)
+    mirror = lookup(env_id).mirror
+    observations, actions = mirror(task.observe(after), forces[:, None].astype(np.float32))
+    np.testing.assert_allclose(observations, task.observe(flipped_after), atol=1e-5)
+    np.testing.assert_array_equal(actions, -forces[:, None].astype(np.float32))
+    steps = np.arange(400) % task.horizon + 1
+    for expected, got in zip(task.reward(after, steps), task.reward(flipped_after, steps), strict=True):
+        np.testing.assert_allclose(got, expected, atol=1e-9)
+    starts = task.sample_starts(rng, 200)
+    angle_offset = np.pi if isinstance(task, SwingUpTask) else 0.0
+    flipped_angles = np.mod(-starts[:, 2] - angle_offset + np.pi, 2 * np.pi) - np.pi + angle_offset
+    assert (np.abs(-starts[:, 0]) <= task.start_high[0]).all()
+    assert ((flipped_angles >= task.start_low[1]) & (flipped_angles <= task.start_high[1])).all()

@@ -75,6 +75,15 @@ def test_each_member_is_fitted_on_its_own_episodes_and_disagrees_where_they_diff
     assert prediction.observations.shape == (3, 4, 2) and (model.disagreement(prediction) > 0).all()
 
 
+def test_a_least_squares_fit_with_mirror_images_is_symmetric_and_counts_only_real_episodes_held_out():
+    model = make_model("linear", 2, 1, members=3)
+    buffer = EpisodeBuffer(linear_system_episodes(10, 30, seed=5))
+    reports = fit_model(model, buffer, SETTINGS, seed=0, mirror=lambda o, a: (-o, -a))
+    assert [report.held_out_episodes for report in reports] == [2, 2, 2]
+    np.testing.assert_allclose(model.observation_mean.numpy(), 0.0, atol=1e-6)
+    np.testing.assert_allclose(model.action_mean.numpy(), 0.0, atol=1e-6)
+
+
 def test_a_remade_model_has_the_kind_and_shape_and_a_fit_gives_the_same_weights():
     model = make_model("linear", 2, 1, members=2)
     buffer = EpisodeBuffer(linear_system_episodes(10, 30, seed=5))

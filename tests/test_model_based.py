@@ -268,12 +268,36 @@ def test_model_based_settings_are_validated_with_field_value_and_choices(model_b
     [
         (dict(env="MountainCarContinuous-v0", model_based={"reward": "known"}), "no closed-form reward is known"),
         (dict(budget=1), "fewer than model_based.initial_episodes"),
+        (dict(env="Pendulum-v1", model_based={"mirror_episodes": True}), "declares no reflection symmetry"),
     ],
 )
 def test_model_based_runs_are_checked_before_any_work(change, message):
     config = TrainConfig.model_validate({**SMALL.model_dump(), **change})
     with pytest.raises(ValueError, match=message):
         prepare(config)
+
+
+def test_mirror_episodes_fit_the_model_to_mirror_images_and_imagine_from_mirrored_starts_too(monkeypatch):
+    mirrors, fit_model = [], drrl.model_based.fit_model
+
+    def recording(*args):
+        mirrors.append(args[-1])
+        return fit_model(*args)
+
+    monkeypatch.setattr(drrl.model_based, "fit_model", recording)
+    config = TrainConfig.model_validate(
+        {**SMALL.model_dump(), "budget": 2, "model_based": {**QUICK_MODEL, "mirror_episodes": True}}
+    )
+    setup = prepare(config)
+    try:
+        run(setup)
+        world = setup.world
+        assert mirrors == [lookup("cartpole").mirror]
+        starts = world.buffer.start_observations()
+        imagined = world.imagined_world(0.0).start_observations
+        np.testing.assert_array_equal(imagined, np.concatenate([starts, -starts]))
+    finally:
+        setup.close()
 
 
 def test_a_config_without_model_based_prepares_a_model_free_run():

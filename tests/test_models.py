@@ -12,7 +12,7 @@ from drrl.envs.cartpole import BalanceTask, PartiallyObservedTask, SwingUpTask, 
 from drrl.envs.registry import lookup
 from drrl.models import Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv, WorldModel
 from drrl.models import fit as fit_module
-from drrl.models.data import STILL
+from drrl.models.data import STILL, with_mirror_images
 from drrl.models.fit import clip_member_gradients, fit, split_episodes, split_offsets
 from drrl.models.kinds import MODEL_KINDS, make_model
 from drrl.models.outcome import fit_outcome
@@ -395,6 +395,34 @@ def test_ensemble_members_are_fitted_on_different_held_out_episodes():
     assert [report.held_out_episodes for report in reports] == [2, 2, 2]
     assert len({report.valid_loss for report in reports}) == 3
     assert len({tuple(scale.tolist()) for scale in model.change_scale}) == 3  # each member's own training split
+
+
+def negated(observations, actions):
+    """The linear system's reflection symmetry: o_{t+1} = A o_t + B a_t holds for (−o, −a) as for (o, a)."""
+    return -observations, -actions
+
+
+def test_mirror_images_are_appended_once_per_episode_so_parts_stay_parts():
+    episodes = linear_system_episodes(4, 6, seed=0)
+    whole, part = with_mirror_images([EpisodeBuffer(episodes), EpisodeBuffer(episodes[1:3])], negated)
+    assert len(whole) == 8 and whole.episodes[:4] == episodes
+    assert part.episodes[:2] == episodes[1:3] and part.episodes[2] is whole.episodes[5]  # the same image objects
+    image, original = whole.episodes[4], episodes[0]
+    np.testing.assert_array_equal(image.observations, -original.observations)
+    np.testing.assert_array_equal(image.actions, -original.actions)
+    assert image.rewards is original.rewards and image.terminated == original.terminated
+
+
+def test_a_fit_with_mirror_images_trains_on_them_and_counts_only_real_episodes_held_out():
+    model = WorldModel(2, 1, (8,), members=3)
+    settings = FitSettings(unfold=2, overshoot=2, max_updates=20, validate_every=10)
+    reports = fit(model, EpisodeBuffer(linear_system_episodes(10, 20, seed=0)), settings, mirror=negated)
+    assert [report.held_out_episodes for report in reports] == [2, 2, 2]
+    # every member's training data is symmetric about 0, whichever episodes it holds out
+    np.testing.assert_allclose(model.observation_mean.numpy(), 0.0, atol=1e-6)
+    unmirrored = WorldModel(2, 1, (8,), members=3)
+    fit(unmirrored, EpisodeBuffer(linear_system_episodes(10, 20, seed=0)), settings)
+    assert np.abs(unmirrored.observation_mean.numpy()).max() > 1e-3
 
 
 def test_the_imagined_env_is_a_vector_env_that_evaluate_runs_unchanged():

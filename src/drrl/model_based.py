@@ -2,11 +2,12 @@
 
 One step of the loop (``drrl.loop.run``) is one iteration:
     1. collect real episodes with the current centre policy μ and exploring candidates μ ± ε from the search;
-    2. fit the world model(s) to all real episodes so far (``drrl.models.fit``; later fits start from the previous
+    2. fit the world model(s) to all real episodes so far (``drrl.models.fit``; with ``mirror_episodes``, to their
+       mirror images too, where the task declares its reflection symmetry; later fits start from the previous
        weights, a recurrent model's fits all hold out the same episodes, and a later fit whose held-out loss
        jumps to ``LOSS_JUMP`` times the last one is done again from new weights, the better of the two kept);
-    3. run the search inside the model (an ``ImaginedEnv``, made by every backend worker
-       from an ``ImaginedWorld``), from real start states, for at most
+    3. run the search inside the model (an ``ImaginedEnv``, made by every backend worker from an ``ImaginedWorld``),
+       from real start states (and their mirror images, with ``mirror_episodes``), for at most
        ``model_based.generations`` generations of ``drrl.loop.run_generation``, the model-free generation,
        stopping early once the candidates' mean imagined return stops improving (a generation whose candidates all
        earn the same imagined return widens σ instead, ``drrl.search.pgpe``);
@@ -96,11 +97,17 @@ class ModelBased(World):
             raise ValueError(
                 f"model_based.reward: no closed-form reward is known for {entry.env_id!r}; use 'learned' or 'auto'"
             )
+        if settings.mirror_episodes and entry.mirror is None:
+            raise ValueError(
+                f"model_based.mirror_episodes: {entry.env_id!r} declares no reflection symmetry to mirror its "
+                f"episodes by (drrl's cart-poles do); leave mirror_episodes off"
+            )
         self.config, self.settings, self.policy, self.backend = config, settings, policy, backend
         self.real = RegisteredEnv(entry.env_id, config.engine)
         self.action_space = eval_env.single_action_space
         seen = eval_env.single_observation_space
         frames = is_frames(seen)
+        self.mirror = entry.mirror if settings.mirror_episodes else None
         self.autoencoder = frame_autoencoder(seen.shape or (), settings, config.seed, config.device) if frames else None
         self.frames = EpisodeBuffer()  # the real episodes as frames, where the env observes frames
         observation_size = self.autoencoder.features if self.autoencoder else int(np.prod(seen.shape or ()))
@@ -156,7 +163,7 @@ class ModelBased(World):
             seeing = self.see(iteration)
         fit_now = fitting_settings(self.settings.fit_settings(iteration == 1, False), self.buffer)
         seed = derive_seed(config.seed, iteration, FITTING)
-        reports = fit_model(self.model, self.buffer, fit_now, seed, self.split_seed)
+        reports = fit_model(self.model, self.buffer, fit_now, seed, self.split_seed, self.mirror)
         if any(report.stop == "diverged" for report in reports):
             raise ModelDiverged(f"iteration {iteration}: the world model's loss turned non-finite")
         previous = counters.rows[-1] if counters.rows else {}
@@ -260,9 +267,12 @@ class ModelBased(World):
     def imagined_world(self, disagreement_penalty: float, horizon: int | None = None) -> ImaginedWorld:
         """The current model as imagined episodes from the real start states so far, ``horizon`` steps long (the
         search's horizon unless given)."""
+        starts = self.buffer.start_observations()
+        if self.mirror is not None:  # the task's starts are symmetric too
+            starts = np.concatenate([starts, self.mirror(starts, np.zeros((0, 1), np.float32))[0]])
         return ImaginedWorld.of(
             self.model,
-            self.buffer.start_observations(),
+            starts,
             self.action_space,
             horizon or self.horizon,
             self.known_reward or self.outcome,
@@ -282,7 +292,7 @@ class ModelBased(World):
         seed = derive_seed(self.config.seed, iteration, FITTING)
         fresh = remake(self.model, seed)
         settings = fitting_settings(self.settings.fit_settings(True, False), self.buffer)
-        fresh_reports = fit_model(fresh, self.buffer, settings, seed, self.split_seed)
+        fresh_reports = fit_model(fresh, self.buffer, settings, seed, self.split_seed, self.mirror)
         worse = held_out_loss(fresh_reports) >= held_out_loss(reports)
         if worse or any(report.stop == "diverged" for report in fresh_reports):
             return reports

@@ -567,6 +567,21 @@ def swing_up_reward(observations: np.ndarray, steps: np.ndarray) -> tuple[np.nda
     return SwingUpTask().reward(np.stack([s, s_dot, np.arctan2(sin, cos), theta_dot], 1), steps)
 
 
+def balance_mirror(observations: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The balance tasks' mirror image, the track and the pole flipped left for right: every observed entry ((s, ṡ,
+    θ, θ̇), or (s, θ) partially observed) and the force change sign; starts, rewards and ends do not change."""
+    return -observations, -actions
+
+
+_SWING_UP_FLIP = np.array([-1, -1, -1, 1, -1], dtype=np.float32)  # (s, ṡ, sin θ, cos θ, θ̇) flipped
+
+
+def swing_up_mirror(observations: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The swing-up's mirror image, the track and the pole flipped left for right: s, ṡ, sin θ, θ̇ and the force
+    change sign, cos θ does not; starts, rewards and ends do not change."""
+    return observations * _SWING_UP_FLIP, -actions
+
+
 # The swing-up's own settings (BENCHMARKS.md, "Model-based PGPE on the swing-up"): a tanh MLP, since a linear policy
 # cannot both pump energy and balance; for its 113 weights a smaller σ and a longer step than the cart-pole's, with
 # ranks. Model-free: 200 candidates × 1 episode a generation, solved after about 110 generations.
@@ -620,6 +635,7 @@ def _register() -> None:
         "explain": explain_balance,
         "reward": balance_reward,
         "end_reward": failure_reward,
+        "mirror": balance_mirror,
     }
     for entry, task in (
         (EnvEntry("drrl/CartPole-v0", "cartpole", **balance), None),
@@ -640,6 +656,7 @@ def _register() -> None:
                 explain_swing_up,
                 swing_up_reward,
                 end_reward=swing_up_failure_reward,
+                mirror=swing_up_mirror,
                 defaults=SWING_UP_SETTINGS,
                 model_based_defaults=SWING_UP_MODEL_BASED_SETTINGS,
             ),

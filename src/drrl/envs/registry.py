@@ -4,7 +4,8 @@ An entry holds the Gymnasium id and drrl's short alias, the task's verdict (what
 ``drrl eval`` explains it, the task's reward and end in closed form of the observation when there is one, and of the
 action where the task charges it (imagined episodes then use them instead of a learned reward), the observation
 entries that follow in closed form from the others (imagined observations are completed by them), the reward of a
-step that ends the episode where the step alone decides it (imagined episodes with a learned end then pay it), a
+step that ends the episode where the step alone decides it (imagined episodes with a learned end then pay it), the
+task's reflection symmetry where it has one (world models can then learn from every episode's mirror image too), a
 scripted demonstrator where the task has one (a run's first centre can be cloned from its episodes), and settings
 that suit the task. Each environment registers its entry from its own module (``register``), which also registers
 it with Gymnasium; a family of ids made from others, such as ``Pixels/ID`` for any ``ID``, registers each member
@@ -49,6 +50,9 @@ Demonstrator = Callable[[np.ndarray], np.ndarray]
 # (observations (N, o), predicted next observations (N, o)) -> the next ones with the entries that follow from the
 # rest recomputed
 ObservationFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
+# (observations (N, o), actions (M, a)) -> their mirror images under the task's reflection symmetry, which leaves
+# rewards and ends as they are
+Mirror = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -63,6 +67,7 @@ class EnvEntry:
     action_cost: ActionCost | None = None  # taken from ``reward`` where the task charges its actions
     complete_observation: ObservationFunction | None = None  # e.g. Baxter's end-point offsets from its joint angles
     end_reward: EndReward | None = None  # a terminating step's reward where only the step decides it (5.8's failure)
+    mirror: Mirror | None = None  # the task's reflection symmetry, e.g. the cart-poles' left-right flip
     demonstrator: Demonstrator | None = None  # a scripted policy a run's first centre can be cloned from
     suggested: dict = field(default_factory=dict)  # TrainConfig settings that suit the task
     defaults: dict = field(default_factory=dict)  # TrainConfig settings a model-free run on the task starts from

@@ -9,8 +9,8 @@ episode's end is masked there, so short (often failed, and informative) episodes
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -23,6 +23,10 @@ from gymnasium.vector import VectorEnv, VectorWrapper
 # imagined step, and those moves, fed back as inputs, ruined every prediction made from them (the k-step errors of
 # Baxter's joint angles fell from 0.17 to 0.007 rad at 20 steps on the episodes fitted, with this floor).
 STILL = 1e-6
+
+# (observations (N, o), actions (M, a)) -> their mirror images under a task's reflection symmetry, which leaves
+# rewards and ends as they are (drrl.envs.registry.EnvEntry.mirror)
+Mirror = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -159,6 +163,21 @@ class EpisodeBuffer:
                 for o, a, r, t in zip(observations, actions, rewards, state["terminated"].tolist(), strict=True)
             ]
         )
+
+
+def with_mirror_images(buffers: Sequence[EpisodeBuffer], mirror: Mirror) -> list[EpisodeBuffer]:
+    """Each of ``buffers`` with the mirror image of each of its episodes appended: episodes the env would have given
+    the mirrored actions, with the same rewards and ends. An episode's image is one object wherever the episode
+    appears, so that parts of a buffer stay parts of it (``drrl.models.fit`` finds windows by episode)."""
+    images: dict[int, Episode] = {}
+
+    def image(episode: Episode) -> Episode:
+        if id(episode) not in images:
+            observations, actions = mirror(episode.observations, episode.actions)
+            images[id(episode)] = replace(episode, observations=observations, actions=actions)
+        return images[id(episode)]
+
+    return [EpisodeBuffer([*buffer.episodes, *map(image, buffer.episodes)]) for buffer in buffers]
 
 
 def _positive(std: np.ndarray, constant: float = 1.0) -> np.ndarray:

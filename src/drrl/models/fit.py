@@ -29,7 +29,7 @@ from typing import cast
 import numpy as np
 import torch
 
-from drrl.models.data import EpisodeBuffer
+from drrl.models.data import EpisodeBuffer, Mirror, with_mirror_images
 from drrl.models.optimizers import AdamLambda, NesterovAG
 from drrl.models.recurrent import WorldModel, window_losses
 
@@ -104,18 +104,24 @@ def fit(
     settings: FitSettings = FitSettings(),
     seed: int = 0,
     split_seed: int | None = None,
+    mirror: Mirror | None = None,
 ) -> list[FitReport]:
     """Train ``model``'s K members on ``buffer`` in place, side by side, each with its own held-out episodes,
     normalisation and minibatches; returns a report per member. Raises if the data cannot be unfolded.
 
     ``seed`` draws the minibatches; ``split_seed`` (``seed`` if None) places the held-out episodes
-    (``split_episodes``): a run passes the same one to every fit, so that its splits only grow.
+    (``split_episodes``): a run passes the same one to every fit, so that its splits only grow. With ``mirror``, the
+    task's reflection symmetry, every episode is also fitted (or held out) as its mirror image, beside itself.
 
     A member whose validation loss has not improved for ``patience`` validations keeps its best weights; the fit
     stops when every member has, or after ``max_updates``.
     """
     buffer.check_unfolding(settings.unfold, settings.overshoot)
     splits = [split_episodes(buffer, settings, offset) for offset in split_offsets(split_seed, seed, len(model))]
+    held_out_episodes = [len(held_out) for _, held_out in splits]  # real episodes, not their images
+    if mirror is not None:
+        buffer, *parts = with_mirror_images([buffer, *(part for split in splits for part in split)], mirror)
+        splits = list(zip(parts[::2], parts[1::2], strict=True))
     scales = [training.scales() for training, _ in splits]
     model.set_scales({name: torch.stack([member[name] for member in scales]) for name in scales[0]})
     windows = buffer.windows(settings.unfold, settings.overshoot).to(model.device)
@@ -193,10 +199,10 @@ def fit(
             updates=updates,
             train_loss=float(train_loss[k]),
             valid_loss=float(best_loss[k]),
-            held_out_episodes=len(held_out),
+            held_out_episodes=held_out_episodes[k],
             stop=stop,
         )
-        for k, (_, held_out) in enumerate(splits)
+        for k in range(len(model))
     ]
 
 

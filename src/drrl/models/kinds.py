@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import torch
 
 from drrl.models.base import LearnedModel
-from drrl.models.data import EpisodeBuffer
+from drrl.models.data import EpisodeBuffer, Mirror
 from drrl.models.fit import FitReport, FitSettings, fit
 from drrl.models.linear import LinearModel, fit_linear
 from drrl.models.recurrent import NETWORK_KINDS, WorldModel
@@ -53,12 +53,18 @@ def remake(model: LearnedModel, seed: int) -> LearnedModel:
 
 
 def fit_model(
-    model: LearnedModel, buffer: EpisodeBuffer, settings: FitSettings, seed: int = 0, split_seed: int | None = None
+    model: LearnedModel,
+    buffer: EpisodeBuffer,
+    settings: FitSettings,
+    seed: int = 0,
+    split_seed: int | None = None,
+    mirror: Mirror | None = None,
 ) -> list[FitReport]:
-    """Fit ``model`` in place to ``buffer`` as its kind is fitted; a report per member. A recurrent model's held-out
-    episodes are placed by ``split_seed`` (``drrl.models.fit.split_episodes``), the linear model's drawn from ``seed``
-    at every fit (``drrl.models.linear.split_at_random``)."""
+    """Fit ``model`` in place to ``buffer`` (and the episodes' mirror images, where ``mirror`` gives the task's
+    reflection symmetry) as its kind is fitted; a report per member. A recurrent model's held-out episodes are
+    placed by ``split_seed`` (``drrl.models.fit.split_episodes``), the linear model's drawn from ``seed`` at every
+    fit (``drrl.models.linear.split_at_random``)."""
     if isinstance(model, LinearModel):
-        return fit_linear(model, buffer, settings, seed)
+        return fit_linear(model, buffer, settings, seed, mirror)
     assert isinstance(model, WorldModel)
-    return fit(model, buffer, settings, seed, split_seed)
+    return fit(model, buffer, settings, seed, split_seed, mirror)

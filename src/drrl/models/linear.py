@@ -40,7 +40,7 @@ import torch
 from torch import nn
 
 from drrl.models.base import Prediction, per_member, spread
-from drrl.models.data import EpisodeBuffer
+from drrl.models.data import EpisodeBuffer, Mirror, with_mirror_images
 from drrl.models.fit import FitReport, FitSettings
 from drrl.models.recurrent import window_losses
 
@@ -170,27 +170,35 @@ class LinearModel(nn.Module):
 
 
 def fit_linear(
-    model: LinearModel, buffer: EpisodeBuffer, settings: FitSettings = FitSettings(), seed: int = 0
+    model: LinearModel,
+    buffer: EpisodeBuffer,
+    settings: FitSettings = FitSettings(),
+    seed: int = 0,
+    mirror: Mirror | None = None,
 ) -> list[FitReport]:
-    """Fit each member of ``model`` in place by ridge regression on its own training episodes (``split_at_random``);
-    a report per member, its losses measured as the recurrent models' are (``window_losses`` over windows of
-    ``settings.unfold`` + ``settings.overshoot`` steps)."""
+    """Fit each member of ``model`` in place by ridge regression on its own training episodes (``split_at_random``),
+    with their mirror images where ``mirror`` gives the task's reflection symmetry; a report per member, its losses
+    measured as the recurrent models' are (``window_losses`` over windows of ``settings.unfold`` +
+    ``settings.overshoot`` steps)."""
     buffer.check_unfolding(settings.unfold, settings.overshoot)
     rng = np.random.default_rng(seed)
     reports = []
     for k in range(len(model)):
         training, held_out = split_at_random(buffer, settings, rng)
+        real_held_out = len(held_out)
+        if mirror is not None:
+            training, held_out = with_mirror_images([training, held_out], mirror)
         _fit_member(model, k, training, settings.learn_reward)
-        reports.append((training, held_out))
+        reports.append((training, held_out, real_held_out))
     return [
         FitReport(
             updates=0,
             train_loss=_loss(model, k, training, settings),
             valid_loss=_loss(model, k, held_out if len(held_out) else training, settings),
-            held_out_episodes=len(held_out),
+            held_out_episodes=real_held_out,
             stop="least_squares",
         )
-        for k, (training, held_out) in enumerate(reports)
+        for k, (training, held_out, real_held_out) in enumerate(reports)
     ]
 
 

@@ -84,6 +84,12 @@ class ModelBasedSettings(BaseModel):
         description="after the search in the model, go back to the search's state before it unless the new centre's "
         "imagined return beats the old centre's in the same model, on the same imagined starts",
     )
+    mirror_episodes: bool = Field(
+        False,
+        description="also fit the world model to every real episode's mirror image under the task's reflection "
+        "symmetry (a left-right flip of the cart-poles), and start imagined episodes from the mirrored real starts "
+        "too: twice the data for no real episode; needs an env that declares its symmetry",
+    )
     policy_memory: bool = Field(
         False,
         description="the policy also reads the world model's memory, its last layer's hidden state after the steps "
