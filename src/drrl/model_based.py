@@ -265,11 +265,12 @@ class ModelBased(World):
         return candidates[torch.argsort(evaluation.returns, descending=True, stable=True)[:count]]
 
     def imagined_world(self, disagreement_penalty: float, horizon: int | None = None) -> ImaginedWorld:
-        """The current model as imagined episodes from the real start states so far, ``horizon`` steps long (the
-        search's horizon unless given)."""
+        """The current model as imagined episodes from the real start states so far (and their mirror images, with
+        ``mirror_episodes``), ``horizon`` steps long (the search's horizon unless given)."""
         starts = self.buffer.start_observations()
         if self.mirror is not None:  # the task's starts are symmetric too
-            starts = np.concatenate([starts, self.mirror(starts, np.zeros((0, 1), np.float32))[0]])
+            no_actions = np.zeros((0, action_size(self.action_space)), np.float32)
+            starts = np.concatenate([starts, self.mirror(starts, no_actions)[0]])
         return ImaginedWorld.of(
             self.model,
             starts,
