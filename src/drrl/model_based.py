@@ -100,7 +100,7 @@ class ModelBased(World):
         if settings.mirror_episodes and entry.mirror is None:
             raise ValueError(
                 f"model_based.mirror_episodes: {entry.env_id!r} declares no reflection symmetry to mirror its "
-                f"episodes by (drrl's cart-poles do); leave mirror_episodes off"
+                f"episodes by (drrl's cart-poles and Pendulum-v1 do); leave mirror_episodes off"
             )
         self.config, self.settings, self.policy, self.backend = config, settings, policy, backend
         self.real = RegisteredEnv(entry.env_id, config.engine)

@@ -107,6 +107,15 @@ def pendulum_reward(next_observations: np.ndarray, steps: np.ndarray) -> tuple[n
     return -(np.arctan2(sin, cos) ** 2 + 0.1 * velocity**2), np.zeros(len(next_observations), dtype=bool)
 
 
+_PENDULUM_FLIP = np.array([1, -1, -1], dtype=np.float32)  # (cos θ, sin θ, θ̇) flipped
+
+
+def pendulum_mirror(observations: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pendulum-v1 flipped left for right: sin θ, θ̇ and the torque change sign, cos θ does not; its starts (θ and θ̇
+    uniform about 0), its cost and its dynamics are symmetric under the flip."""
+    return observations * _PENDULUM_FLIP, -actions
+
+
 def reacher_reward(next_observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gymnasium's Reacher-v5 (mujoco/reacher_v5.py) pays −‖fingertip − target‖ (observations 8 and 9, after the
     step) and −‖a‖² (``reacher_action_cost``) a step. The episode never ends."""
@@ -146,3 +155,4 @@ REWARDS = {
 }
 ACTION_COSTS = {"Reacher-v5": reacher_action_cost}
 COMPLETIONS = {"Reacher-v5": complete_reacher_observation}
+MIRRORS = {"Pendulum-v1": pendulum_mirror}  # the tasks' reflection symmetries (EnvEntry.mirror)

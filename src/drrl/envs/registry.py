@@ -30,6 +30,7 @@ from drrl.envs.gymnasium_tasks import (
     ACTION_COSTS,
     COMPLETIONS,
     DEFAULTS,
+    MIRRORS,
     MODEL_BASED_DEFAULTS,
     REWARDS,
     SOLVED_LEVELS,
@@ -207,6 +208,7 @@ def gymnasium_entry(env_id: str) -> EnvEntry:
         reward=REWARDS.get(env_id),
         action_cost=ACTION_COSTS.get(env_id),
         complete_observation=COMPLETIONS.get(env_id),
+        mirror=MIRRORS.get(env_id),
         defaults={**cut, **DEFAULTS.get(env_id, {})},
         model_based_defaults={**cut, **MODEL_BASED_DEFAULTS.get(env_id, {})},
     )

@@ -87,8 +87,8 @@ class ModelBasedSettings(BaseModel):
     mirror_episodes: bool = Field(
         False,
         description="also fit the world model to every real episode's mirror image under the task's reflection "
-        "symmetry (a left-right flip of the cart-poles), and start imagined episodes from the mirrored real starts "
-        "too: twice the data for no real episode; needs an env that declares its symmetry",
+        "symmetry (the cart-poles' and Pendulum-v1's left-right flip), and start imagined episodes from the "
+        "mirrored real starts too: twice the data for no real episode; needs an env that declares its symmetry",
     )
     policy_memory: bool = Field(
         False,
