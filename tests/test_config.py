@@ -95,6 +95,7 @@ def test_pendulum_s_model_based_run_starts_from_its_own_settings_which_its_confi
         30,
     )
     assert model_based.model_based is not None and model_based.model_based.generations == 120
+    assert model_based.model_based.mirror_episodes
     assert TrainConfig(env="Pendulum-v1", model_based={"generations": 10}).model_based.generations == 10  # merged
     assert TrainConfig(env="Acrobot-v1", model_based={}).policy == TrainConfig(model_based={}).policy  # none of its own
     path = Path(__file__).parents[1] / "configs" / "pendulum-model-based.toml"

@@ -130,7 +130,8 @@ class CartPolePixelsEnv(CartPoleEnv):
 FIRST_FIT = {"initial_episodes": 20, "episodes_per_iteration": 4}
 PIXELS_MODEL_BASED_SETTINGS: dict[str, Any] = {
     "budget": 50,
-    "model_based": {**FIRST_FIT, "ensemble_size": 5, "disagreement_penalty": 1.0},
+    # a state's mirror image is not its frames' code: Pixels/Pendulum-v1 does not take Pendulum-v1's mirror_episodes
+    "model_based": {**FIRST_FIT, "ensemble_size": 5, "disagreement_penalty": 1.0, "mirror_episodes": False},
 }
 SWING_UP_PIXELS_MODEL_BASED_SETTINGS: dict[str, Any] = {
     **SWING_UP_MODEL_BASED_SETTINGS,
