@@ -119,8 +119,8 @@ def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypa
     from new weights with the first fit's updates, and that fit, far better, is kept and reported."""
     real_fit, calls, inflated = drrl.model_based.fit_model, [], []
 
-    def fit(model, buffer, settings, seed, split_seed):
-        reports = real_fit(model, buffer, settings, seed, split_seed)
+    def fit(model, buffer, settings, seed, split_seed, mirror):
+        reports = real_fit(model, buffer, settings, seed, split_seed, mirror)
         calls.append(settings.max_updates)
         if len(calls) == 2:
             reports = [dataclasses.replace(report, valid_loss=report.valid_loss * 1e6) for report in reports]
