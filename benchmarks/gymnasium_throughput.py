@@ -7,6 +7,7 @@ shaping, one episode per candidate, no observation normalisation, one torch thre
 actions are the argmax of the policy's outputs, Box actions are clipped to their bounds, on both sides. Contenders:
 
 * drrl, engine ``gymnasium``: Gymnasium's envs stepped in turn, an ended episode's env left alone;
+* drrl, engine ``numba``: the same episodes compiled by Numba, in the caller's thread (classic control only);
 * drrl, engine ``envpool``: EnvPool's C++ batch (a seeded reset makes the pool anew: once a generation);
 * drrl, engine ``processes``: the gymnasium engine's envs spread over one worker process per core;
 * EvoTorch ``GymNE``: one Gymnasium env, the candidates one after another;
@@ -37,6 +38,7 @@ from evotorch.algorithms import PGPE
 from evotorch.neuroevolution import GymNE, VecGymNE
 
 from drrl.config import TrainConfig
+from drrl.envs.batch import choose_engine
 from drrl.loop import TRAINING, derive_seed, run_generation
 from drrl.train import prepare
 
@@ -123,12 +125,21 @@ def timed(contender, generations: int) -> tuple[float, int]:
     return time.perf_counter() - start, steps
 
 
+def can_run(env: str, engine: str) -> bool:
+    """Whether drrl's ``engine`` can step ``env`` here (numba: classic control only; envpool: where installed)."""
+    try:
+        choose_engine(env, engine)
+    except ValueError:
+        return False
+    return True
+
+
 def measure(env: str, popsize: int, rounds: int, seconds: float, engines: list[str]) -> list[dict]:
     """All contenders run the same generations, so that their searches are at the same stage (episode lengths
     change as a search learns): N a round for all, aimed at 1.5 × ``seconds`` for the fastest contender and raised
     after a round whose fastest took less."""
     contenders = [
-        *(Drrl(env, engine, popsize) for engine in engines),
+        *(Drrl(env, engine, popsize) for engine in engines if can_run(env, engine)),
         EvoTorch(env, "GymNE", popsize),
         EvoTorch(env, "VecGymNE", popsize),
     ]
@@ -165,7 +176,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--popsize", type=int, default=100)
     parser.add_argument("--seconds", type=float, default=2.0, help="least time of one contender's round")
-    parser.add_argument("--engines", default="gymnasium,envpool", help="comma-separated drrl engines")
+    parser.add_argument("--engines", default="gymnasium,numba,envpool", help="comma-separated drrl engines")
     args = parser.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(0)  # EvoTorch's sampling

@@ -11,7 +11,7 @@ import torch
 from click.testing import CliRunner
 
 from drrl.cli import main
-from drrl.envs import pool
+from drrl.envs import compiled, pool
 from drrl.envs.batch import choose_engine, make_batch_env
 from drrl.envs.cores import available_cores
 from drrl.envs.processes import ProcessEpisodes
@@ -135,17 +135,21 @@ def test_discrete_and_tuple_observations_are_seen_one_hot_and_an_env_without_a_t
 def test_auto_picks_drrls_own_batch_for_its_envs_and_refuses_engines_that_cannot_run_an_id(monkeypatch):
     assert choose_engine("cartpole") == "native"
     monkeypatch.setattr(pool, "installed", lambda: False)
+    monkeypatch.setattr(compiled, "installed", lambda: False)
     assert choose_engine("Acrobot-v1") == "gymnasium"
+    with pytest.raises(ValueError, match=r'engine numba is not installed; pip install "drrl\[numba\]"'):
+        choose_engine("Acrobot-v1", "numba")
     with pytest.raises(ValueError, match=r'engine envpool is not installed; pip install "drrl\[envpool\]"'):
         choose_engine("Acrobot-v1", "envpool")
     with pytest.raises(
-        ValueError, match="Acrobot-v1 has no native drrl batch; its engines are envpool, gymnasium and processes"
+        ValueError, match="Acrobot-v1 has no native drrl batch; its engines are numba, envpool, gymnasium and processes"
     ):
         choose_engine("Acrobot-v1", "native")
 
 
 def test_a_run_names_the_engine_it_used_in_its_config(tmp_path, monkeypatch):
     monkeypatch.setattr(pool, "installed", lambda: False)
+    monkeypatch.setattr(compiled, "installed", lambda: False)
     out = tmp_path / "run"
     result = CliRunner().invoke(
         main,
@@ -174,14 +178,20 @@ def test_a_run_names_the_engine_it_used_in_its_config(tmp_path, monkeypatch):
         [line.rsplit(",", 1)[0] for line in (run / "metrics.csv").read_text().splitlines()] for run in (out, spread)
     ]
     assert same_run[0] == same_run[1] and same_run[0][0].endswith("eval_episodes")  # all but the wall time
+    if compiled.installed():  # Gymnasium's own episodes, compiled: the same run
+        fast = tmp_path / "fast"
+        result = CliRunner().invoke(main, [*arguments, "--engine", "numba", "--out", str(fast)])
+        assert result.exit_code == 0, result.output
+        assert RunFolder(fast).read_config().engine == "numba"
+        assert [line.rsplit(",", 1)[0] for line in (fast / "metrics.csv").read_text().splitlines()] == same_run[0]
     refused = CliRunner().invoke(main, ["train", "cartpole", "--engine", "envpool", "--out", str(tmp_path / "x")])
     assert refused.exit_code == 2 and 'engine envpool is not installed; pip install "drrl[envpool]"' in refused.output
 
 
 @pytest.mark.skipif(not pool.installed(), reason='needs EnvPool (pip install "drrl[envpool]")')
 class TestEnvPool:
-    def test_auto_picks_envpool_for_the_tasks_it_ships(self):
-        assert choose_engine("Acrobot-v1") == "envpool" and choose_engine("drrl/CartPole-v0") == "native"
+    def test_auto_picks_envpool_for_the_tasks_it_ships_beyond_numbas(self):
+        assert choose_engine("MountainCarContinuous-v0") == "envpool" and choose_engine("drrl/CartPole-v0") == "native"
         with pytest.raises(ValueError, match="EnvPool has no drrl/CartPole-v0; use engine gymnasium"):
             choose_engine("cartpole", "envpool")
 

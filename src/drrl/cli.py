@@ -74,8 +74,9 @@ def main(ctx: click.Context, debug: bool) -> None:
 @setting(
     "engine",
     click.Choice(ENGINES),
-    "what steps the env's batch: drrl's own (native), EnvPool "
-    '(pip install "drrl[envpool]"), Gymnasium\'s envs in turn (gymnasium) or over a process per core (processes)',
+    "what steps the env's batch: drrl's own (native), Gymnasium's classic-control tasks compiled (numba, pip install "
+    '"drrl[numba]"), EnvPool (pip install "drrl[envpool]"), Gymnasium\'s envs in turn (gymnasium) or over a process '
+    "per core (processes)",
 )
 @setting("policy", str, ACCEPTED_FORMS)
 @setting(

@@ -1,6 +1,8 @@
-"""The one batched-environment interface: Gymnasium's ``VectorEnv``, made by one of four engines.
+"""The one batched-environment interface: Gymnasium's ``VectorEnv``, made by one of five engines.
 
 * ``native``: drrl's own environments, NumPy or MuJoCo batches (``gymnasium.make_vec`` returns them).
+* ``numba``: Gymnasium's classic-control tasks compiled by Numba, Gymnasium's own episodes bit for bit, stepped in
+  the caller's thread (``drrl.envs.compiled``).
 * ``envpool``: EnvPool's C++ batches of Gymnasium's classic-control and MuJoCo tasks (``drrl.envs.pool``).
 * ``gymnasium``: any other registered env with a 1-D Box observation (or discrete ones, seen one-hot) and a Box or
   Discrete action, one Gymnasium env per slot stepped in turn (``drrl.envs.serial``). Gymnasium's own native
@@ -25,12 +27,12 @@ import torch
 from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
-from drrl.envs import pool
+from drrl.envs import compiled, pool
 from drrl.envs.processes import ProcessEpisodes
 from drrl.envs.registry import is_own, lookup
 from drrl.envs.serial import SerialEpisodes
 
-ENGINES = ("auto", "native", "envpool", "gymnasium", "processes")
+ENGINES = ("auto", "native", "numba", "envpool", "gymnasium", "processes")
 
 
 class EnvSource(Protocol):
@@ -59,17 +61,25 @@ def resolve_env_id(name: str) -> str:
 
 
 def choose_engine(name: str, engine: str = "auto", with_options: bool = False) -> str:
-    """The engine that batches env ``name``: ``engine`` itself if it can, the first that can for ``auto`` (not
-    EnvPool if the env is to be made ``with_options``: EnvPool makes its tasks as it ships them)."""
+    """The engine that batches env ``name``: ``engine`` itself if it can, the first that can for ``auto`` (neither
+    Numba nor EnvPool if the env is to be made ``with_options``: they make their tasks as registered)."""
     env_id = resolve_env_id(name)
     native = is_own(env_id) and gymnasium.spec(env_id).vector_entry_point is not None
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; choose one of: {', '.join(ENGINES)}")
     if engine == "auto":
-        pooled = not with_options and pool.installed() and pool.ships(env_id)
-        return "native" if native else "envpool" if pooled else "gymnasium"
+        if native:
+            return "native"
+        if not with_options and compiled.installed() and compiled.ships(env_id):
+            return "numba"
+        return "envpool" if not with_options and pool.installed() and pool.ships(env_id) else "gymnasium"
     if engine == "native" and not native:
-        raise ValueError(f"{env_id} has no native drrl batch; its engines are envpool, gymnasium and processes")
+        raise ValueError(f"{env_id} has no native drrl batch; its engines are numba, envpool, gymnasium and processes")
+    if engine == "numba":
+        if not compiled.installed():
+            raise ValueError('engine numba is not installed; pip install "drrl[numba]"')
+        if not compiled.ships(env_id):
+            raise ValueError(f"engine numba compiles only {', '.join(compiled.TASKS)}; use engine gymnasium")
     if engine == "envpool":
         if not pool.installed():
             raise ValueError('engine envpool is not installed; pip install "drrl[envpool]"')
@@ -89,6 +99,10 @@ def make_batch_env(
     try:
         if engine == "native":
             env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **options)
+        elif engine == "numba":
+            if options:
+                raise ValueError(f"engine numba makes {env_id} as Gymnasium registers it, without options {options}")
+            env = compiled.CompiledEpisodes(env_id, num_envs)
         elif engine == "envpool":
             if options:
                 raise ValueError(f"engine envpool makes {env_id} as EnvPool ships it, without options {options}")

@@ -41,15 +41,10 @@ class EpisodeSlots(VectorEnv):
     def reset(
         self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start an episode in every sub-environment: ``seed`` None (go on from the current generators), one int
-        (sub-environment i gets seed + i, as in Gymnasium's vector envs) or one seed each."""
-        if seed is None or isinstance(seed, (int, np.integer)):
-            seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = [int(s) for s in seed]
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"expected one seed per env ({self.num_envs}), got {len(seeds)}")
-        self._observations = np.array(self.start(seeds), dtype=self.single_observation_space.dtype)
+        """Start an episode in every sub-environment, seeded as ``slot_seeds`` says."""
+        self._observations = np.array(
+            self.start(slot_seeds(seed, self.num_envs)), dtype=self.single_observation_space.dtype
+        )
         self._terminated[:] = False
         self._truncated[:] = False
         return self._observations.copy(), {}
@@ -76,3 +71,14 @@ class EpisodeSlots(VectorEnv):
     def advance(self, slots: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Step sub-environments ``slots`` (ascending) with ``actions`` (one row each): observations, rewards,
         terminated and truncated, in the order of ``slots``."""
+
+
+def slot_seeds(seed: int | Sequence[int] | None, num_envs: int) -> list[int | None]:
+    """Each of ``num_envs`` slots' reset seed from ``seed``: None (go on from the current generators), one int
+    (slot i gets seed + i, as in Gymnasium's vector envs) or one seed each."""
+    if seed is None or isinstance(seed, (int, np.integer)):
+        return [None if seed is None else int(seed) + i for i in range(num_envs)]
+    seeds: list[int | None] = [int(s) for s in seed]
+    if len(seeds) != num_envs:
+        raise ValueError(f"expected one seed per env ({num_envs}), got {len(seeds)}")
+    return seeds
