@@ -12,7 +12,7 @@ import ctypes
 import ctypes.util
 
 _libm = ctypes.CDLL(ctypes.util.find_library("m"))
-pow = _libm.pow  # noqa: A001  (the C function's own name)
+pow = _libm.pow
 pow.argtypes = (ctypes.c_double, ctypes.c_double)
 pow.restype = ctypes.c_double
 powf = _libm.powf

@@ -17,9 +17,7 @@ def step_running(advance: Callable, observe: Callable) -> Callable:
     at every call, which costs more than the step.)"""
 
     @numba.njit
-    def step(
-        states, actions, horizon, elapsed, observations, rewards, terminated, truncated
-    ):
+    def step(states, actions, horizon, elapsed, observations, rewards, terminated, truncated):
         for i in range(states.shape[0]):
             if terminated[i] or truncated[i]:
                 rewards[i] = 0.0
