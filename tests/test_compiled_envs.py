@@ -13,18 +13,21 @@ pytestmark = pytest.mark.skipif(not compiled.installed(), reason='needs numba: p
 
 # actions that pump energy into the tasks that need it to end: a torque along the second link's velocity swings
 # the acrobot's tip up, a push along the car's velocity takes it up the hill
-PUMPING = {"Acrobot-v1": 5, "MountainCar-v0": 1}  # the observation entry to push along
+PUMPING = {"Acrobot-v1": 5, "MountainCar-v0": 1, "MountainCarContinuous-v0": 1}  # the observation entry to push along
 
 
 def some_actions(env_id: str, space, observations: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Random actions, out-of-range ones among them for a Box; mostly pumping ones where the task needs them."""
     count = len(observations)
-    if space.shape != ():
-        return rng.uniform(-1.5 * space.high, 1.5 * space.high, (count, *space.shape)).astype(np.float32)
-    actions = rng.integers(space.n, size=count)
+    if space.shape == ():
+        actions = rng.integers(space.n, size=count)
+        along = np.where(observations[:, PUMPING.get(env_id, 0)] > 0, 2, 0)
+    else:
+        actions = rng.uniform(-1.5 * space.high, 1.5 * space.high, (count, *space.shape)).astype(np.float32)
+        along = np.abs(actions) * np.where(observations[:, PUMPING.get(env_id, 0)] > 0, 1, -1)[:, None]
     if env_id in PUMPING:
-        along = np.where(observations[:, PUMPING[env_id]] > 0, 2, 0)
-        actions = np.where(rng.random(count) < 0.8, along, actions)
+        pumping = rng.random(count) < 0.8
+        actions[pumping] = along[pumping]
     return actions
 
 

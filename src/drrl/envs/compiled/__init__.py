@@ -35,6 +35,7 @@ TASKS = {
     "Acrobot-v1": "acrobot",
     "CartPole-v1": "cartpole",
     "MountainCar-v0": "mountain_car",
+    "MountainCarContinuous-v0": "continuous_mountain_car",
     "Pendulum-v1": "pendulum",
 }
 
