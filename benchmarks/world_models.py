@@ -43,7 +43,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     training, held_out = (
-        EpisodeBuffer.from_state_dict(RunFolder(path).load_checkpoint()["buffer"])
+        EpisodeBuffer.from_state_dict(RunFolder(path).load_checkpoint()["world"]["buffer"])
         for path in (args.training, args.held_out)
     )
     print(
