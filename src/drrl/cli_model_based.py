@@ -48,8 +48,8 @@ def model_based_options(command):
         click.option(
             "--model-kind",
             type=click.Choice(MODEL_KINDS),
-            help="world model: state-space RNN (3.4), LSTM (3.5.2), their layers without memory (mlp), or linear, "
-            "fitted by least squares  "
+            help="world model: state-space RNN (3.4), LSTM (3.5.2), their layers without memory (mlp), or linear "
+            "or sparse polynomial, fitted by least squares  "
             f"[default: {_default('model_kind')}]",
         ),
         click.option(

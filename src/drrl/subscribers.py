@@ -148,8 +148,8 @@ def remedies(settings: ModelBasedSettings | None) -> list[str]:
     """What helps a model that the search exploits, of what the run does not do already."""
     settings = settings or ModelBasedSettings.model_validate({})
     larger = (
-        "a recurrent model (--model-kind rnn or lstm)"  # a linear model has no width to grow
-        if settings.model_kind == "linear"
+        "a recurrent model (--model-kind rnn or lstm)"  # a least-squares model has no width to grow
+        if settings.model_kind in ("linear", "polynomial")
         else "a larger model (--model-hidden)"
     )
     return [

@@ -12,6 +12,7 @@ from drrl.models.fit import MODEL_OPTIMIZERS, FitReport, FitSettings
 from drrl.models.imagined import ImaginedEnv, ImaginedWorld, RewardFunction
 from drrl.models.kinds import MODEL_KINDS
 from drrl.models.linear import LinearModel
+from drrl.models.polynomial import PolynomialModel
 from drrl.models.recurrent import FUTURE_INPUTS, WorldModel, unfolding_loss, window_losses
 from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
@@ -30,6 +31,7 @@ __all__ = [
     "LearnedModel",
     "LinearModel",
     "ModelBasedSettings",
+    "PolynomialModel",
     "Prediction",
     "RewardFunction",
     "Windows",

@@ -6,6 +6,7 @@ and how to fit it to real episodes.
 | "rnn", "lstm" | ``drrl.models.recurrent`` (thesis 3.3–3.5) | back-propagation through time (``drrl.models.fit``) |
 | "mlp" | ``drrl.models.recurrent`` (its layers without the recurrence) | the same |
 | "linear" | ``drrl.models.linear`` (3.3, identity activation) | least squares (``drrl.models.linear``) |
+| "polynomial" | ``drrl.models.polynomial`` (the linear model on monomials) | sparse least squares (SINDy) |
 """
 
 from __future__ import annotations
@@ -18,9 +19,11 @@ from drrl.models.base import LearnedModel
 from drrl.models.data import EpisodeBuffer, Mirror
 from drrl.models.fit import FitReport, FitSettings, fit
 from drrl.models.linear import LinearModel, fit_linear
+from drrl.models.polynomial import PolynomialModel
 from drrl.models.recurrent import NETWORK_KINDS, WorldModel
 
-MODEL_KINDS = (*NETWORK_KINDS, "linear")
+LEAST_SQUARES = {"linear": LinearModel, "polynomial": PolynomialModel}  # the kinds fitted in closed form
+MODEL_KINDS = (*NETWORK_KINDS, *LEAST_SQUARES)
 
 
 def make_model(
@@ -37,8 +40,8 @@ def make_model(
     untouched (``hidden`` and ``future_inputs`` shape the recurrent kinds only)."""
     if kind not in MODEL_KINDS:
         raise ValueError(f"unknown model kind {kind!r}; choose one of: {', '.join(MODEL_KINDS)}")
-    if kind == "linear":
-        return LinearModel(observation_size, action_size, members).to(device)
+    if kind in LEAST_SQUARES:
+        return LEAST_SQUARES[kind](observation_size, action_size, members).to(device)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         return WorldModel(observation_size, action_size, hidden, kind, future_inputs, members).to(device)

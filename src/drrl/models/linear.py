@@ -35,6 +35,8 @@ Departures from the thesis, and why
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import torch
 from torch import nn
@@ -65,6 +67,7 @@ class LinearModel(nn.Module):
     action_mean: torch.Tensor
     action_scale: torch.Tensor
     weight: torch.Tensor
+    ridge = RIDGE
 
     def __init__(self, observation_size: int, action_size: int, members: int = 1):
         super().__init__()
@@ -165,6 +168,11 @@ class LinearModel(nn.Module):
         reward = y[..., -2] * per_member(self.reward_scale, y[..., -2]) + per_member(self.reward_mean, y[..., -2])
         return Prediction(observation + change, reward, y[..., -1].clamp(0.0, 1.0))
 
+    def solve(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """The weight W (f, o + 2) that minimises ‖xW − y‖² + ridge · n · ‖W‖² over the n rows of x (n, f)."""
+        gram = x.T @ x + self.ridge * len(x) * torch.eye(x.shape[1], dtype=x.dtype, device=x.device)
+        return torch.linalg.solve(gram, x.T @ y)
+
     def _per_member_inputs(self, tensor: torch.Tensor) -> torch.Tensor:
         return tensor.expand(self.members, *tensor.shape) if tensor.dim() == 2 else tensor
 
@@ -236,8 +244,7 @@ def _fit_member(model: LinearModel, k: int, training: EpisodeBuffer, learn_rewar
         .double()
     )
     y = torch.as_tensor(np.concatenate(targets), dtype=torch.float64, device=model.device)
-    gram = x.T @ x + RIDGE * len(x) * torch.eye(x.shape[1], dtype=torch.float64, device=model.device)
-    weight = torch.linalg.solve(gram, x.T @ y)
+    weight = model.solve(x, y)
     if not learn_reward:
         weight[:, -2:] = 0.0
     with torch.no_grad():
@@ -245,12 +252,10 @@ def _fit_member(model: LinearModel, k: int, training: EpisodeBuffer, learn_rewar
 
 
 def _member_view(model: LinearModel, member: slice) -> LinearModel:
-    """A one-member model sharing ``model``'s buffers for ``member``."""
-    view = LinearModel.__new__(LinearModel)
-    nn.Module.__init__(view)
-    view.observation_size, view.action_size, view.members = model.observation_size, model.action_size, 1
-    for name, value in model.named_buffers():
-        view.register_buffer(name, value[member])
+    """A one-member model of ``model``'s kind sharing its buffers for ``member``."""
+    view = copy.copy(model)
+    view._buffers = {name: value[member] for name, value in model.named_buffers()}
+    view.members = 1
     return view
 
 
