@@ -123,7 +123,7 @@ class CartPolePixelsEnv(CartPoleEnv):
 
 
 # Model-based from frames: the state task's model-based search on the latent state (the cart-pole's linear policy
-# on the codes and their changes; the swing-up's MLP and LSTM ensemble), the reward and end learned from it (no
+# on the codes and their changes; the swing-up's MLP with an LSTM ensemble), the reward and end learned from it (no
 # closed form reads them off frames), and 20 real episodes before the first fit, which the autoencoder needs to tell
 # positions apart. The balance task adds an ensemble of five with a disagreement penalty: a single model, fitted to
 # 20 short falling episodes, let the search find policies it kept up that fell within ten steps in reality.
@@ -136,7 +136,15 @@ PIXELS_MODEL_BASED_SETTINGS: dict[str, Any] = {
 SWING_UP_PIXELS_MODEL_BASED_SETTINGS: dict[str, Any] = {
     **SWING_UP_MODEL_BASED_SETTINGS,
     "budget": 50,
-    "model_based": {**SWING_UP_MODEL_BASED_SETTINGS["model_based"], **FIRST_FIT},
+    "model_based": {
+        **SWING_UP_MODEL_BASED_SETTINGS["model_based"],
+        # the LSTM ensemble it was measured with (a frame's code is not the state a polynomial suits, nor mirrored)
+        "model_kind": "lstm",
+        "hidden": (32,),
+        "mirror_episodes": False,
+        "keep_unless_improved": False,
+        **FIRST_FIT,
+    },
 }
 
 

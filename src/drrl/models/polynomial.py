@@ -18,9 +18,12 @@ normalised units of features and targets) is set to zero and the target refitted
 kept features stop changing (at most ``SWEEPS`` times). Few terms generalise from few data; a full polynomial fitted
 to a few hundred steps would follow their noise.
 
+Beyond the thesis, whose world models are recurrent networks (3.3–3.5): a recurrent network must find a
+mechanical system's structure in its data, where this model starts from it.
+
 Departures from SINDy, and why
     * Ridge instead of plain least squares in every solve (λ = ``RIDGE`` per training step): the early episodes of
-      a run hold too few distinct states for the 90-odd features to be determined.
+      a run hold too few distinct states for the 85 features of the swing-up's model to be determined.
     * Predictions are held within ``BOUND`` standard deviations of the fitted data: a polynomial fed its own
       predictions can run away without limit (cubic terms), where any state that far from the data is unknown to
       the model anyway.
@@ -50,7 +53,9 @@ class PolynomialModel(LinearModel):
     def __init__(self, observation_size: int, action_size: int, members: int = 1):
         inputs = observation_size + action_size
         monomials = [
-            term for degree in range(2, DEGREE + 1) for term in itertools.combinations_with_replacement(range(inputs), degree)
+            term
+            for degree in range(2, DEGREE + 1)
+            for term in itertools.combinations_with_replacement(range(inputs), degree)
         ]
         # factor indices of every monomial, degree-padded with the index of a column of ones: (DEGREE, M)
         self.factors = torch.tensor([[*term, *[inputs] * (DEGREE - len(term))] for term in monomials]).T
