@@ -7,19 +7,17 @@ of the normalised observation and action, z = (normalised o_t, normalised a_t)::
     x_t     = (z_i z_j, z_i z_j z_k for i ≤ j ≤ k,  normalised o_t, a_t, a_{t−1}, 1)
     ô_{t+1} = o_t + (x_t W)[obs] · std(Δo),   kept within ``BOUND`` standard deviations of the data's o
 
-Why. A mechanical system's accelerations are smooth functions of its angles' sines and cosines, its velocities and
-the force (the cart-pole's are nearly polynomials of degree 3 in them), so a polynomial of the few observed
-quantities carries a physical model's structure where a recurrent network must find it in the data. Fitted on the
-swing-up's first real episodes it predicts many steps ahead several times closer than the LSTM ensemble, in under a
-second where the LSTMs take tens of seconds (BENCHMARKS.md, "Model-based PGPE on the swing-up").
+Why, beyond the thesis's recurrent world models (3.3–3.5). A mechanical system's accelerations are smooth functions
+of its angles' sines and cosines, its velocities and the force (the cart-pole's are nearly polynomials of degree 3
+in them), so a polynomial of the few observed quantities carries a physical model's structure where a recurrent
+network must find it in the data. Fitted on the swing-up's first real episodes it predicts many steps ahead several
+times closer than the LSTM ensemble, in under a second where the LSTMs take tens of seconds (BENCHMARKS.md,
+"Model-based PGPE on the swing-up").
 
 Fitting. Ridge regression as the linear model's, then SINDy's thresholding: every weight below ``THRESHOLD`` (in the
 normalised units of features and targets) is set to zero and the target refitted on the features left, until the
 kept features stop changing (at most ``SWEEPS`` times). Few terms generalise from few data; a full polynomial fitted
 to a few hundred steps would follow their noise.
-
-Beyond the thesis, whose world models are recurrent networks (3.3–3.5): a recurrent network must find a
-mechanical system's structure in its data, where this model starts from it.
 
 Departures from SINDy, and why
     * Ridge instead of plain least squares in every solve (λ = ``RIDGE`` per training step): the early episodes of
