@@ -314,10 +314,11 @@ def test_a_config_without_model_based_prepares_a_model_free_run():
 
 
 # ------------------------------------------------------------------------------------------------ the command
-def tiny_config(tmp_path):
+def tiny_config(tmp_path, **model_based):
     path = tmp_path / "tiny.json"
+    settings = {**QUICK_MODEL, **model_based}
     path.write_text(
-        json.dumps({"model_based": QUICK_MODEL, "eval_episodes": 5, "popsize": 8, "episodes_per_candidate": 2})
+        json.dumps({"model_based": settings, "eval_episodes": 5, "popsize": 8, "episodes_per_candidate": 2})
     )
     return path
 
@@ -429,24 +430,31 @@ def test_a_diverging_model_stops_the_run_and_keeps_the_data_and_the_model(tmp_pa
     assert checkpoint["world"]["model"] and checkpoint["iteration"] == 1
 
 
-def test_a_stopped_model_based_run_resumes_from_the_command_line_to_the_uninterrupted_metrics(tmp_path, monkeypatch):
-    # (--resume refused model-based runs before; now it continues them exactly, the timing columns aside)
-    import drrl.model_based as model_based
+@pytest.mark.parametrize(
+    "model_based", [{}, {"model_kind": "polynomial", "mirror_episodes": True, "keep_unless_improved": True}]
+)
+def test_a_stopped_model_based_run_resumes_from_the_command_line_to_the_uninterrupted_metrics(
+    tmp_path, monkeypatch, model_based
+):
+    # (--resume refused model-based runs before; now it continues them exactly, the timing columns aside; the
+    # second case is the swing-up's model and loop)
+    import drrl.model_based as model_based_loop
 
-    args = ["train", "cartpole", "--model-based", "--budget", "6", "--config", str(tiny_config(tmp_path)), "--quiet"]
+    config = str(tiny_config(tmp_path, **model_based))
+    args = ["train", "cartpole", "--model-based", "--budget", "6", "--config", config, "--quiet"]
     whole = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "whole")])
     assert whole.exit_code == 0 and "done: 3 iterations" in whole.output, whole.output
-    real_fit, fits = model_based.fit_model, []
+    real_fit, fits = model_based_loop.fit_model, []
 
     def diverge_in_the_third_fit(*args, **kwargs):
         fits.append(1)
         return real_fit(*args, **kwargs) if len(fits) < 3 else [FitReport(7, float("nan"), 1.0, 0, "diverged")]
 
-    monkeypatch.setattr(model_based, "fit_model", diverge_in_the_third_fit)
+    monkeypatch.setattr(model_based_loop, "fit_model", diverge_in_the_third_fit)
     out = tmp_path / "stopped"
     stopped = CliRunner().invoke(main, [*args, "--out", str(out)])
     assert stopped.exit_code == 1 and f"continue with: drrl train --resume {out}" in stopped.output
-    monkeypatch.setattr(model_based, "fit_model", real_fit)
+    monkeypatch.setattr(model_based_loop, "fit_model", real_fit)
     resumed = CliRunner().invoke(main, ["train", "--resume", str(out), "--quiet"])
     assert resumed.exit_code == 0, resumed.output
     assert f"resuming {out} at iteration 3 of 3" in resumed.output and "done: 3 iterations" in resumed.output
