@@ -109,12 +109,13 @@ def test_the_swing_up_starts_from_its_own_settings_and_its_config_file_spells_ou
     model_based = TrainConfig(env="cartpole-swingup", model_based={})
     assert (model_based.policy, model_based.budget, model_based.episodes_per_candidate) == ("mlp:16", 30, 1)
     assert model_based.model_based is not None and model_based.model_based.model_kind == "polynomial"
-    assert model_based.model_based.exploration_bonus == 3.0  # explorers chosen by the ensemble's disagreement
+    assert model_based.model_based.episodes_per_iteration == 1  # a new model and centre after every real episode
     assert model_based.model_based.mirror_episodes and model_based.model_based.keep_unless_improved
     smaller = TrainConfig(env="cartpole-swingup", model_based={"ensemble_size": 3})
     assert smaller.model_based is not None
     assert (smaller.model_based.ensemble_size, smaller.model_based.model_kind) == (3, "polynomial")  # merged
     pixels = TrainConfig(env="cartpole-swingup-pixels", model_based={}).model_based
     assert pixels is not None and (pixels.model_kind, pixels.mirror_episodes) == ("lstm", False)  # as measured
+    assert (pixels.exploration_bonus, pixels.episodes_per_iteration) == (3.0, 4)
     path = Path(__file__).parents[1] / "configs" / "cartpole-swingup-model-based.toml"
     assert TrainConfig.model_validate(load_config_file(path)) == model_based

@@ -600,9 +600,10 @@ SWING_UP_SETTINGS = {
 # plateau, a pole that swings up and turns over, too slowly for an early stop to tell progress); an ensemble of five
 # sparse polynomial models (a cart-pole's accelerations are near-polynomials of sin θ, cos θ, the velocities and the
 # force: they predict many steps ahead from a few episodes, fitted in under a second), also fitted to each real
-# episode's mirror image; the new centre kept only if the model rates it above the old one; explorers chosen where
-# the model expects much or its members disagree (a bonus of 3); 30 real episodes at most. BENCHMARKS.md has the
-# figures of each step (the LSTM ensemble before it: solved after a median of 18 real episodes).
+# episode's mirror image; the new centre kept only if the model rates it above the old one; after the first two
+# real episodes, one an iteration, the centre's own, so that every real episode is followed by a new model and a new
+# centre; 30 real episodes at most. BENCHMARKS.md has the figures of each step (the LSTM ensemble before it: solved
+# after a median of 18 real episodes).
 SWING_UP_MODEL_BASED_SETTINGS: dict[str, Any] = {
     **{name: value for name, value in SWING_UP_SETTINGS.items() if name not in ("budget", "eval_every")},
     "budget": 30,
@@ -612,7 +613,7 @@ SWING_UP_MODEL_BASED_SETTINGS: dict[str, Any] = {
         "ensemble_size": 5,
         "generations": 100,
         "patience": 100,
-        "exploration_bonus": 3.0,
+        "episodes_per_iteration": 1,
         "mirror_episodes": True,
         "keep_unless_improved": True,
     },

@@ -138,9 +138,10 @@ SWING_UP_PIXELS_MODEL_BASED_SETTINGS: dict[str, Any] = {
     "budget": 50,
     "model_based": {
         **SWING_UP_MODEL_BASED_SETTINGS["model_based"],
-        # the LSTM ensemble it was measured with (a frame's code is not the state a polynomial suits, nor mirrored)
+        # the LSTM ensemble and explorers it was measured with (a frame's code is not the state a polynomial suits)
         "model_kind": "lstm",
         "hidden": (32,),
+        "exploration_bonus": 3.0,
         "mirror_episodes": False,
         "keep_unless_improved": False,
         **FIRST_FIT,
