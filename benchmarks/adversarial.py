@@ -31,8 +31,8 @@ from click.testing import CliRunner
 from pydantic import ValidationError
 
 from drrl.cli import main
-from drrl.config import TrainConfig, describe_errors, load_config_file
 from drrl.runs import CHECKPOINT, CONFIG, METRICS
+from drrl.settings import TrainConfig, describe_errors, load_config_file
 from drrl.train import prepare
 
 FIELDS = [*TrainConfig.model_fields, "popsise", "model-based"]
@@ -92,7 +92,7 @@ PLAUSIBLE = [
     "cpu",
     {},
     {"hidden": [8], "unfold": 2},
-    {"generations": 2, "fit_updates": 10},
+    {"generations_per_iteration": 2, "fit_updates": 10},
 ]
 
 
@@ -121,7 +121,7 @@ def sweep_settings(rng: random.Random, count: int) -> Counter:
             except ValidationError as error:
                 describe_errors(error)  # the message itself must not fail
                 raise
-            if config.popsize * config.episodes_per_candidate <= 256 and config.eval_episodes <= 256:
+            if config.episodes_per_generation <= 256 and config.measuring.eval_episodes <= 256:
                 prepare(config).close()
 
         results[outcome(validate_and_prepare)] += 1
@@ -230,7 +230,7 @@ def sweep_folders(rng: random.Random, count: int, folder: Path) -> dict[str, Cou
     finished = {}
     for kind, extra in (
         ("model-free", ["--budget", "24"]),
-        ("model-based", ["--model-based", "--budget", "4", "--generations", "2", "--model-hidden", "8"]),
+        ("model-based", ["--model-based", "--budget", "4", "--generations-per-iteration", "2", "--model-hidden", "8"]),
     ):
         finished[kind] = folder / kind
         result = CliRunner().invoke(

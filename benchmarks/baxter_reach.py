@@ -27,12 +27,12 @@ import time
 import numpy as np
 import torch
 
-from drrl.config import EnvSchedule, TrainConfig
 from drrl.envs.batch import ActionMap, make_batch_env
 from drrl.envs.baxter.task import reach_fraction
 from drrl.loop import Counters, Setup, Subscriber, run
 from drrl.policies import Policy
 from drrl.runs import RunFolder
+from drrl.settings import EnvSchedule, TrainConfig
 from drrl.train import build_policy, prepare, subscribers
 
 

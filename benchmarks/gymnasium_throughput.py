@@ -37,9 +37,9 @@ import torch
 from evotorch.algorithms import PGPE
 from evotorch.neuroevolution import GymNE, VecGymNE
 
-from drrl.config import TrainConfig
 from drrl.envs.batch import choose_engine
 from drrl.loop import TRAINING, derive_seed, run_generation
+from drrl.settings import TrainConfig
 from drrl.train import prepare
 
 SIGMA_INIT, CENTER_LR, SIGMA_LR, MAX_SIGMA_CHANGE = 1.0, 0.1, 0.01, 0.2

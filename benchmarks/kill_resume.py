@@ -49,7 +49,7 @@ MODEL_BASED = [
     "10",
     "--episodes-per-candidate",
     "4",
-    "--generations",
+    "--generations-per-iteration",
     "20",
     "--model-hidden",
     "32",

@@ -9,8 +9,8 @@ PPO as an outside reference, the same measuring for all (``drrl.compare.method_r
                  "center_lr": 0.15}' \\
         --action '{"optimizer": "adam", "center_lr": 0.001, "sigma_init": 0.3}'
 
-PGPE (SyS) runs with drrl's defaults, or the task's suggested settings (``EnvEntry.suggested``), or ``--pgpe``;
-REINFORCE and eNAC with their own defaults (``POLICY_GRADIENT_DEFAULTS``) or ``--action``, every method with
+PGPE (SyS) runs with drrl's defaults, or the task's suggested settings (``drrl.settings.presets.suggested``), or ``--pgpe``;
+REINFORCE and eNAC with their own defaults (their presets) or ``--action``, every method with
 ``--policy`` (PPO with its own networks). The centre is measured on ``--eval-episodes`` episodes after every
 ``--eval-every`` updates (PPO: after every update). A seed that never met a criterion counts as worse than any
 that did. Prints a Markdown table; every run's rows go to ``--out`` as one JSON line as soon as it ends.
@@ -29,8 +29,8 @@ from pathlib import Path
 import torch
 
 from drrl.compare import ACTION_SPACE, method_config, method_rows
-from drrl.config import TrainConfig
 from drrl.envs.registry import lookup
+from drrl.settings.presets import suggested
 from drrl.train import train
 
 
@@ -40,7 +40,7 @@ def run(job: tuple[str, int, int, dict, dict]) -> dict:
     start = time.perf_counter()
     if own:  # the method's own settings over compare's
         config = method_config(method, seed, budget, settings)
-        rows = train(TrainConfig.model_validate({**config.model_dump(), **own})).rows
+        rows = train(config.updated(**own)).rows
     else:
         rows = method_rows(method, seed, budget, settings)
     measured = [row for row in rows if row["center_return"] == row["center_return"]]
@@ -79,7 +79,7 @@ def main() -> None:
     task = {"env": args.env, "eval_episodes": args.eval_episodes, "eval_every": args.eval_every}
     if args.policy:
         task["policy"] = args.policy
-    pgpe = {**entry.suggested, **json.loads(args.pgpe), **task}
+    pgpe = {**suggested(entry.env_id), **json.loads(args.pgpe), **task}
     pgpe.pop("budget", None)
     action = json.loads(args.action)
     methods = args.methods.split(",")

@@ -21,11 +21,11 @@ import numpy as np
 import torch
 from sample_efficiency import first_reached, median_or_miss
 
-from drrl.config import TrainConfig, load_config_file
 from drrl.envs.registry import lookup
 from drrl.loop import run
-from drrl.models import EpisodeBuffer, ModelBasedSettings
+from drrl.models import EpisodeBuffer
 from drrl.models.quality import model_quality_report
+from drrl.settings import ModelBasedSettings, TrainConfig, load_config_file
 from drrl.train import prepare
 
 

@@ -21,7 +21,6 @@ import json
 import numpy as np
 import torch
 
-from drrl.config import TrainConfig
 from drrl.envs.batch import RegisteredEnv, make_batch_env
 from drrl.envs.registry import lookup
 from drrl.model_based import build_model, collect, episode_horizon, fitting_settings
@@ -31,6 +30,7 @@ from drrl.models.kinds import fit_model
 from drrl.models.quality import k_step_errors
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig
 from drrl.train import build_policy, open_run
 
 HORIZONS = (1, 10, 50, 100, 300)

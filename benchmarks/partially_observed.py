@@ -23,10 +23,11 @@ import time
 import torch
 from sample_efficiency import first_reached, median_or_miss
 
-from drrl.config import TrainConfig
 from drrl.envs.batch import make_batch_env
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
+from drrl.settings import TrainConfig
+from drrl.settings.flat import flattened
 from drrl.train import train
 
 # PGPE settings for recurrent policies, tuned on 4 seeds per task (see BENCHMARKS.md). Both use a σ below the
@@ -133,7 +134,8 @@ def main() -> None:
     sections = args.sections.split(",")
     recurrent = [spec for spec in args.recurrent.split(",") if spec]
     feedforward = [spec for spec in args.feedforward.split(",") if spec]
-    print(f"defaults: {TrainConfig().model_dump(include=set(PO_SETTINGS) | {'policy'})}")
+    defaults = flattened(TrainConfig())
+    print(f"defaults: { {name: defaults[name] for name in (*PO_SETTINGS, 'policy') if name in defaults} }")
     print(f"PO settings: {PO_SETTINGS}\nfull settings: {FULL_SETTINGS}")
     if "po" in sections:
         runs = [(spec, "PO", PO_SETTINGS) for spec in recurrent]

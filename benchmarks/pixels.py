@@ -34,11 +34,11 @@ import drrl.envs  # noqa: F401  (registers the envs)
 from drrl.envs.batch import make_batch_env
 from drrl.envs.registry import lookup
 from drrl.model_based import ModelBased, frame_autoencoder
-from drrl.models import ModelBasedSettings
 from drrl.models.data import EpisodeRecorder
 from drrl.models.frames import Encoding, fit_autoencoder
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
+from drrl.settings import ModelBasedSettings
 from drrl.train import open_run, prepare
 
 

@@ -26,10 +26,10 @@ import time
 import ray
 import torch
 
-from drrl.config import TrainConfig
 from drrl.envs.batch import make_batch_env
 from drrl.rollout import Workload, make_backend
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig
 from drrl.train import build_policy, build_search
 
 TICKS = os.sysconf("SC_CLK_TCK")

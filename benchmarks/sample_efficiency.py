@@ -17,8 +17,9 @@ from multiprocessing import Pool
 
 import torch
 
-from drrl.config import TrainConfig
 from drrl.search import SEARCHES
+from drrl.settings import TrainConfig
+from drrl.settings.flat import flattened
 from drrl.train import train
 
 CRITERIA = ("balanced", "near_optimal")
@@ -50,7 +51,7 @@ def main() -> None:
     parser.add_argument("--samplers", default="symmetric,reinforce,supersymmetric")
     parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
-    print(f"budget {args.budget} real episodes, seeds 0..{args.seeds - 1}; defaults: {TrainConfig().model_dump()}\n")
+    print(f"budget {args.budget} real episodes, seeds 0..{args.seeds - 1}; defaults: {flattened(TrainConfig())}\n")
     print(
         "| method | median episodes to balanced | median episodes to near-optimal | seeds balanced | "
         "seeds near-optimal | per seed (balanced / near-optimal) |"

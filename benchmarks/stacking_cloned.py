@@ -17,11 +17,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from drrl.config import TrainConfig
 from drrl.envs.batch import make_batch_env
 from drrl.envs.baxter.stacking import stacked_fraction
 from drrl.loop import derive_seed, measure
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig
 from drrl.train import build_policy, open_run, train, trained_center
 
 EPISODES = 50

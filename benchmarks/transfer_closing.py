@@ -22,9 +22,9 @@ from pathlib import Path
 import torch
 from transfer_gap import measure
 
-from drrl.config import TrainConfig
 from drrl.envs.batch import make_batch_env
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig
 from drrl.train import build_policy, train
 
 STAND_IN = {"stand_in": {"seed": 0}}  # the registered stand-in's robot

@@ -21,10 +21,10 @@ import numpy as np
 import torch
 from baxter_reach import final_distances
 
-from drrl.config import TrainConfig
 from drrl.envs.batch import make_batch_env
 from drrl.envs.baxter.task import reach_fraction
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig
 from drrl.train import build_policy, train
 
 

@@ -4,8 +4,8 @@ The held-out episodes come from a different seed's policies, so the error measur
 model predicting, from a real start, many steps ahead in states its own data did not hold. Both run folders are
 model-based runs (their checkpoints hold the real episodes), e.g. of the swing-up:
 
-    drrl train --config configs/cartpole-swingup-model-based.toml --budget 16 --seed 1 --out runs/swingup-1
-    drrl train --config configs/cartpole-swingup-model-based.toml --budget 16 --seed 2 --out runs/swingup-2
+    drrl train cartpole-swingup --model-based --budget 16 --seed 1 --out runs/swingup-1
+    drrl train cartpole-swingup --model-based --budget 16 --seed 2 --out runs/swingup-2
     python benchmarks/world_models.py runs/swingup-1 runs/swingup-2
 """
 

@@ -12,7 +12,6 @@ import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
 
-from drrl.config import TrainConfig
 from drrl.envs.baxter.env import BaxterReachEnv, BaxterReachVectorEnv
 from drrl.envs.baxter.kinematics import arm_points
 from drrl.envs.baxter.model import ARM, SIDES, baxter_xml, import_mujoco, load_model, neutral_pose
@@ -29,6 +28,7 @@ from drrl.envs.baxter.task import (
     side_box,
 )
 from drrl.envs.registry import lookup
+from drrl.settings import TrainConfig
 
 mujoco = import_mujoco()  # headless GL unless MUJOCO_GL says otherwise
 

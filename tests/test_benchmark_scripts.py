@@ -12,7 +12,17 @@ BENCHMARKS = Path(__file__).parent.parent / "benchmarks"
 
 
 def model_based_run(out: Path, seed: int) -> None:
-    settings = ["--budget", "2", "--generations", "1", "--model-hidden", "8", "--eval-episodes", "2", "--quiet"]
+    settings = [
+        "--budget",
+        "2",
+        "--generations-per-iteration",
+        "1",
+        "--model-hidden",
+        "8",
+        "--eval-episodes",
+        "2",
+        "--quiet",
+    ]
     result = CliRunner().invoke(
         main, ["train", "cartpole", "--model-based", *settings, "--seed", str(seed), "--out", str(out)]
     )

@@ -11,9 +11,10 @@ import torch
 from click.testing import CliRunner
 
 from drrl.cli import advice_after_a_miss, main
-from drrl.config import TrainConfig
-from drrl.envs.gymnasium_tasks import DEFAULTS
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig
+from drrl.settings.flat import flattened
+from drrl.settings.presets import PRESETS, TASKS
 from drrl.train import prepare
 
 SMALL = ["--budget", "40", "--popsize", "10", "--eval-episodes", "5", "--eval-share", "1", "--quiet"]
@@ -140,7 +141,9 @@ def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
 
 
 def test_a_model_based_run_that_misses_is_told_the_env_s_own_model_based_settings(tmp_path):
-    result, _ = train(tmp_path, "Pendulum-v1", "--model-based", "--budget", "2", "--generations", "1", "--quiet")
+    result, _ = train(
+        tmp_path, "Pendulum-v1", "--model-based", "--budget", "2", "--generations-per-iteration", "1", "--quiet"
+    )
     assert result.exit_code == 0, result.output
     assert "the centre met none of Pendulum-v1's criteria (solved); settings that suit it: --budget 30" in result.output
     assert "--model-based" not in result.output.split("settings that suit it")[1]
@@ -154,14 +157,15 @@ def test_a_run_with_the_env_s_own_settings_is_told_what_helps_a_run_of_its_kind(
             advice[kind] = advice_after_a_miss(setup)
         finally:
             setup.close()
-    assert "--episodes-per-candidate" in advice["model-free"] and "--generations" not in advice["model-free"]
-    assert "--generations" in advice["model-based"] and "--episodes-per-candidate" not in advice["model-based"]
+    assert "--episodes-per-candidate" in advice["model-free"] and "--generations-per" not in advice["model-free"]
+    assert "--generations-per" in advice["model-based"] and "--episodes-per-candidate" not in advice["model-based"]
 
 
 def test_the_settings_measured_for_gymnasiums_tasks_are_their_defaults_and_valid():
-    for env_id, settings in DEFAULTS.items():
-        config = TrainConfig(env=env_id)
-        assert all(getattr(config, name) == value for name, value in settings.items())
+    for env_id, presets in TASKS.items():
+        if not env_id.startswith("drrl/"):
+            config = flattened(TrainConfig(env=env_id))
+            assert all(config[name] == value for name, value in PRESETS[presets["model-free"]].items())
 
 
 def test_a_gymnasium_task_with_a_reward_threshold_is_judged_solved_or_not_by_it(tmp_path):
@@ -188,11 +192,11 @@ def test_a_gymnasium_task_with_a_reward_threshold_is_judged_solved_or_not_by_it(
 
 def test_config_file_is_read_and_overridden_by_options(tmp_path):
     config = tmp_path / "c.toml"
-    config.write_text('budget = 20\npopsize = 10\neval_episodes = 3\nsampler = "reinforce"\n')
+    config.write_text('budget = 20\npopsize = 10\neval_episodes = 3\nsampler = "single"\n')
     result, out = train(tmp_path, "--config", str(config), "--sampler", "symmetric", "--quiet")
     assert result.exit_code == 0, result.output
     saved = RunFolder(out).read_config()
-    assert (saved.budget, saved.sampler, saved.eval_episodes) == (20, "symmetric", 3)
+    assert (saved.budget, saved.search.sampler, saved.measuring.eval_episodes) == (20, "symmetric", 3)
 
 
 @pytest.mark.parametrize(
@@ -352,7 +356,7 @@ def test_cmaes_and_model_based_on_ray_run_from_the_command_line(tmp_path):
         "--model-based",
         "--budget",
         "4",
-        "--generations",
+        "--generations-per-iteration",
         "2",
         "--model-hidden",
         "8",

@@ -7,15 +7,16 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from pydantic import ValidationError
 
 from drrl.cli import main
 from drrl.cloning import Demonstrations, clone, cloned, demonstrated
-from drrl.config import TrainConfig
 from drrl.envs.baxter.scripted import ScriptedStacker
 from drrl.envs.baxter.stack_env import BaxterStackVectorEnv
 from drrl.envs.registry import lookup
 from drrl.loop import DEMONSTRATING, derive_seed
 from drrl.policies import make_policy
+from drrl.settings import TrainConfig, describe_errors
 from drrl.train import prepare
 
 GAINS = np.array([0.3, 0.2, -1.5, -0.4], dtype=np.float32)  # a linear demonstrator on the thesis cart-pole
@@ -88,15 +89,16 @@ def test_a_run_that_cannot_clone_is_refused_before_any_work(settings, message):
 @pytest.mark.parametrize(
     "settings, message",
     [
-        ({"model_based": {}}, "model-free parameter search"),
+        ({"model_based": {}}, "demonstrations: a setting of model-free runs, not of model-based ones"),
         ({"observation_norm": True}, "reads raw observations"),
         ({"demonstration_rounds": 8}, "one episode a round"),
         ({"budget": 6}, "less 4 demonstrations is smaller than one generation"),
     ],
 )
 def test_bad_demonstration_settings_are_refused_in_one_line(settings, message):
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ValidationError) as error:
         TrainConfig(**{"env": "baxter-stack-end-point", "demonstrations": 4, "popsize": 4, "budget": 20, **settings})
+    assert message in describe_errors(error.value)
 
 
 def test_a_run_from_demonstrations_counts_them_as_real_episodes_and_starts_from_the_clone(tmp_path):
@@ -110,13 +112,13 @@ def test_a_run_from_demonstrations_counts_them_as_real_episodes_and_starts_from_
         (row,) = list(csv.DictReader(handle))
     assert int(row["real_episodes"]) == 4 and int(row["real_steps"]) == 4 * 30  # 2 demonstrations, 2 candidates
     config = TrainConfig(env="baxter-stack-end-point", policy="mlp:8", demonstrations=2, demonstration_rounds=1)
-    config = config.model_copy(update={"popsize": 2, "budget": 4, "max_steps": 30, "eval_episodes": 2})
+    config = config.updated(popsize=2, budget=4, max_steps=30, eval_episodes=2)
     setup = prepare(config)
     try:
         assert setup.spent == (2, 60)
         entry = lookup("baxter-stack-end-point")
         seed = derive_seed(config.seed, 0, DEMONSTRATING)
-        noise = config.demonstration_noise
+        noise = config.world.start.noise
         expected, _ = cloned(setup.policy, entry.demonstrator, entry.env_id, 2, 1, seed, noise, max_steps=30)
         torch.testing.assert_close(setup.search.center, expected)
         assert not torch.equal(expected, setup.policy.initial_center())

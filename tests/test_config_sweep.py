@@ -8,8 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from drrl.config import TrainConfig, describe_errors, load_config_file
-from drrl.models.settings import ModelBasedSettings
+from drrl.settings import ModelBasedSettings, TrainConfig, describe_errors, load_config_file
+from drrl.settings.flat import FLAT
 from drrl.train import prepare
 
 VALUES = st.recursive(
@@ -67,11 +67,12 @@ PLAUSIBLE = st.one_of(
 )  # three parts in four near what a user writes, one part anything
 FIELDS = st.sampled_from(
     [
-        *TrainConfig.model_fields,
+        *(name for name in FLAT if not name.startswith("model_based.")),
+        "search",
         "model_based.hidden",
         "model_based.unfold",
         "model_based.reward",
-        "model_based.generations",
+        "model_based.generations_per_iteration",
         "popsise",
         "model-based",
     ]
@@ -93,7 +94,7 @@ def setting_dicts(draw):
 
 def small(config: TrainConfig) -> bool:
     """Cheap enough to build here: the envs of a generation and of the measurements."""
-    return config.popsize * config.episodes_per_candidate <= 256 and config.eval_episodes <= 256
+    return config.episodes_per_generation <= 256 and config.measuring.eval_episodes <= 256
 
 
 @settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -105,7 +106,8 @@ def test_generated_settings_are_accepted_or_refused_with_a_message(chosen):
         message = describe_errors(error)
         assert message and "Traceback" not in message
         return
-    assert all(math.isfinite(value) for value in (config.sigma_init, config.center_lr, config.sigma_lr))
+    search = config.search
+    assert all(math.isfinite(value) for value in (search.sigma_init, getattr(search, "center_lr", 1.0)))
     assert config.model_based is None or isinstance(config.model_based, ModelBasedSettings)
     if small(config):
         try:
@@ -148,7 +150,7 @@ FLAGS = [
     "--model-hidden",
     "--overshoot",
     "--ensemble",
-    "--generations",
+    "--generations-per-iteration",
     "--backend",
     "--workers",
     "--env",

@@ -16,7 +16,7 @@ from click.testing import CliRunner
 import drrl.cli
 import drrl.train
 from drrl.cli import main
-from drrl.config import TrainConfig
+from drrl.settings import Demonstrations, TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "docs" / "getting-started.md", *sorted((ROOT / "docs" / "tutorials").glob("*.md"))]
@@ -40,14 +40,13 @@ def shortened(config: TrainConfig) -> TrainConfig:
     two model-based iterations of two generations, each fit a few updates long."""
     settings = config.model_based
     if settings is None:
-        demonstrations = min(config.demonstrations, config.demonstration_rounds)
-        budget = demonstrations + config.popsize * config.episodes_per_candidate
-        return config.model_copy(update={"budget": budget, "demonstrations": demonstrations})
-    settings = settings.model_copy(
-        update={"generations": 2, "fit_updates": 5, "refit_updates": 5, "frame_updates": 5, "frame_refit_updates": 5}
-    )
+        start = config.world.start
+        demonstrations = min(start.episodes, start.rounds) if isinstance(start, Demonstrations) else 0
+        budget = demonstrations + config.episodes_per_generation
+        return config.updated(budget=budget, **({"demonstrations": demonstrations} if demonstrations else {}))
+    quick = dict(fit_updates=5, refit_updates=5, frame_updates=5, frame_refit_updates=5)
     budget = settings.initial_episodes + settings.episodes_per_iteration
-    return config.model_copy(update={"budget": budget, "model_based": settings})
+    return config.updated(budget=budget, model_based={"generations_per_iteration": 2, **quick})
 
 
 def check_install(command: str) -> None:
@@ -109,4 +108,4 @@ def test_shortened_budgets_still_run_the_loop():
     model_based = shortened(TrainConfig(model_based={}))
     settings = model_based.model_based
     assert model_based.budget == settings.initial_episodes + settings.episodes_per_iteration
-    assert settings.generations == 2
+    assert settings.generations_per_iteration == 2

@@ -9,10 +9,10 @@ from pydantic import ValidationError
 from test_loop import StopAfter, metrics
 
 from drrl.cli import main
-from drrl.config import EnvSchedule, TrainConfig
 from drrl.envs.batch import make_batch_env
 from drrl.loop import run
 from drrl.runs import RunFolder
+from drrl.settings import EnvSchedule, TrainConfig, describe_errors
 from drrl.train import prepare, resume, subscribers
 
 # Pendulum's gravity g (Gymnasium's default 10) from 20 down to 5 over the whole budget of 3 generations
@@ -43,7 +43,7 @@ def test_training_follows_the_schedule_and_measuring_sees_the_registered_env():
     setup = prepare(SCHEDULED)
     try:
         counters = run(setup)
-        expected = [SCHEDULED.env_schedule.value(done / 12) for done in (0, 4, 8)]
+        expected = [SCHEDULED.world.env_schedule.value(done / 12) for done in (0, 4, 8)]
         assert [row["g"] for row in counters.rows] == pytest.approx(expected)
         assert [env.unwrapped.g for env in setup.world.backend.env.envs] == pytest.approx([expected[-1]] * 4)
         assert [env.unwrapped.g for env in setup.eval_env.envs] == [10.0, 10.0]
@@ -60,7 +60,7 @@ def test_a_scheduled_run_resumes_exactly(tmp_path):
     resume(tmp_path / "stopped")
     assert metrics(tmp_path / "stopped") == metrics(tmp_path / "whole")
     assert [float(row["g"]) for row in metrics(tmp_path / "whole")] == pytest.approx(
-        [SCHEDULED.env_schedule.value(done / 12) for done in (0, 4, 8)]
+        [SCHEDULED.world.env_schedule.value(done / 12) for done in (0, 4, 8)]
     )
 
 
@@ -78,8 +78,9 @@ def test_options_reach_the_env_and_an_unknown_one_is_refused_before_any_work(tmp
 
 
 def test_a_schedule_is_for_model_free_runs_and_moves_between_positive_values():
-    with pytest.raises(ValidationError, match="env_schedule is for model-free runs"):
+    with pytest.raises(ValidationError) as error:
         TrainConfig(model_based={}, env_schedule={"option": "tolerance", "start": 0.5, "end": 0.05})
+    assert "env_schedule: a setting of model-free runs, not of model-based ones" in describe_errors(error.value)
     with pytest.raises(ValidationError, match="greater than 0"):
         TrainConfig(env_schedule={"option": "tolerance", "start": 0.0, "end": 0.05})
 
@@ -90,7 +91,7 @@ def test_an_adaptive_schedule_steps_only_after_generations_that_earned_it():
     assert schedule.value(0.0, stage=9) == pytest.approx(5.0)
     for advance_at, stages in ((-1e9, (0, 1, 2)), (1e9, (0, 0, 0))):  # every generation earns a step / none does
         adaptive = {"option": "g", "start": 20.0, "end": 5.0, "advance_at": advance_at, "steps": 4}
-        setup = prepare(SCHEDULED.model_copy(update={"env_schedule": EnvSchedule(**adaptive)}))
+        setup = prepare(SCHEDULED.updated(env_schedule=adaptive))
         try:
             rows = run(setup).rows
         finally:
@@ -99,9 +100,7 @@ def test_an_adaptive_schedule_steps_only_after_generations_that_earned_it():
 
 
 def test_an_adaptive_schedule_resumes_exactly(tmp_path):
-    config = SCHEDULED.model_copy(
-        update={"env_schedule": EnvSchedule(option="g", start=20.0, end=5.0, advance_at=-1e9, steps=4)}
-    )
+    config = SCHEDULED.updated(env_schedule=dict(option="g", start=20.0, end=5.0, advance_at=-1e9, steps=4))
     run(prepare(config), subscribers(RunFolder.create(tmp_path / "whole"), progress=False))
     with pytest.raises(KeyboardInterrupt):
         run(prepare(config), [*subscribers(RunFolder.create(tmp_path / "stopped"), progress=False), StopAfter(2)])

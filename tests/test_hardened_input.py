@@ -15,6 +15,7 @@ from safetensors.torch import save_file
 
 from drrl.cli import main
 from drrl.runs import CHECKPOINT, CONFIG, METRICS, RunFolder
+from drrl.settings.flat import FLAT
 
 
 def train(*args):
@@ -35,7 +36,7 @@ def train(*args):
         (
             "choice.json",
             '{"sampler": "genetic"}',
-            "sampler: 'genetic' is not one of: reinforce, symmetric, supersymmetric (got 'genetic')",
+            "sampler: 'genetic' is not one of: single, symmetric, supersymmetric (got 'genetic')",
         ),
         ("pairs.toml", "popsize = 7\n", "symmetric sampling needs an even popsize (pairs μ ± ε), got 7"),
         ("truncated.toml", "popsize = 8\nbudget = ", "is not valid TOML: Invalid value (at end of document)"),
@@ -89,7 +90,15 @@ def rewrite_checkpoint(folder: RunFolder, change) -> None:
 
 
 def edit_config(folder: RunFolder, **settings) -> None:
-    (folder.path / CONFIG).write_text(json.dumps({**json.loads((folder.path / CONFIG).read_text()), **settings}))
+    """config.json with settings, given by their flat names, replaced where config.json holds them."""
+    config = json.loads((folder.path / CONFIG).read_text())
+    for name, value in settings.items():
+        *parts, leaf = FLAT[name].path if name in FLAT else (name,)
+        target = config
+        for part in parts:
+            target = target[part]
+        target[leaf] = value
+    (folder.path / CONFIG).write_text(json.dumps(config))
 
 
 def rename_digest(folder: RunFolder, key: str) -> None:
@@ -164,18 +173,21 @@ DAMAGE = {
         "(policy: 'mlp:2' in config.json, 'linear:nobias' when trained)",
     ),
     "another sampler": (
-        lambda f: edit_config(f, sampler="reinforce"),
-        "(sampler: 'reinforce' in config.json, 'symmetric' when trained)",
+        lambda f: edit_config(f, sampler="single"),
+        "(sampler: 'single' in config.json, 'symmetric' when trained)",
     ),
     "another seed": (lambda f: edit_config(f, seed=5), "(seed: 5 in config.json, 0 when trained)"),
-    "another model": (lambda f: edit_config(f, model_based={"hidden": [8]}), "(model_based: {'initial_episodes'"),
+    "another world": (
+        lambda f: edit_config(f, world={"kind": "model-based"}),
+        "config.json differs from the settings its checkpoint was trained with (checkpoint_every: None in config.json",
+    ),
     "no digest": (lambda f: rename_digest(f, "sha257"), "has no SHA-256 digest, so its contents cannot be checked"),
     "a truncated config": (
         lambda f: (f.path / CONFIG).write_text((f.path / CONFIG).read_text()[:50]),
-        "config.json is not a valid drrl config:\nconfig: Invalid JSON: EOF while parsing",
+        "config.json is not JSON: ",
     ),
     "an edited config": (
-        lambda f: (f.path / CONFIG).write_text(json.dumps({**json.loads((f.path / CONFIG).read_text()), "popsize": 0})),
+        lambda f: edit_config(f, popsize=0),
         "popsize: Input should be greater than or equal to 2 (got 0)",
     ),
     "no metrics": (lambda f: (f.path / METRICS).unlink(), "metrics.csv is unreadable"),

@@ -9,12 +9,11 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from drrl.config import TrainConfig
 from drrl.envs.registry import lookup
 from drrl.loop import Counters, Subscriber, run, solved
-from drrl.models.settings import ModelBasedSettings
 from drrl.rollout.moments import Moments
 from drrl.runs import RunFolder
+from drrl.settings import ModelBasedSettings, TrainConfig
 from drrl.train import prepare, resume, subscribers, train
 
 SOURCE = Path(__file__).parents[1] / "src" / "drrl"
@@ -22,7 +21,7 @@ TINY_MODEL = {
     "hidden": [8],
     "unfold": 2,
     "overshoot": 4,
-    "generations": 3,
+    "generations_per_iteration": 3,
     "fit_updates": 40,
     "refit_updates": 20,
     "ensemble_size": 2,
@@ -69,9 +68,9 @@ class StopAfter(Subscriber):
 
 def test_model_based_defaults_merge_in_the_config_alone():
     config = TrainConfig(model_based={})
-    assert (config.popsize, config.episodes_per_candidate, config.budget) == (20, 10, 20)
-    assert TrainConfig(model_based={}, popsize=4).popsize == 4  # given settings win
-    assert TrainConfig().popsize == 8  # model-free keeps its own
+    assert (config.search.popsize, config.search.episodes_per_candidate, config.budget) == (20, 10, 20)
+    assert TrainConfig(model_based={}, popsize=4).search.popsize == 4  # given settings win
+    assert TrainConfig().search.popsize == 8  # model-free keeps its own
 
 
 @pytest.mark.parametrize("stop_after", [1, 2])
@@ -133,7 +132,7 @@ def test_normalised_observations_resume_exactly_and_the_env_runs_the_folded_cent
     checkpoint = RunFolder(tmp_path / "whole").load_checkpoint()
     moments = checkpoint["world"]["observation_moments"]
     assert int(moments["count"].sum()) == whole.real_steps  # every observation acted on in training, once
-    assert RunFolder(tmp_path / "whole").read_config().observation_norm is True  # the resolved setting is kept
+    assert RunFolder(tmp_path / "whole").read_config().world.observation_norm is True  # the resolved setting is kept
     setup = prepare(NORMALISED)
     with pytest.raises(KeyboardInterrupt):
         run(setup, [*subscribers(RunFolder.create(tmp_path / "stopped"), progress=False), StopAfter(2)])
@@ -209,15 +208,25 @@ def test_tensorboard_logs_every_metric_against_real_episodes(tmp_path):
 # ------------------------------------------------------------------------------------------------ the layers
 
 LAYER_RULES = {  # a module (or package) -> drrl modules it must not import, directly or lazily
-    "models": ("drrl.envs", "drrl.search", "drrl.rollout", "drrl.loop", "drrl.train"),
+    "models": ("drrl.envs", "drrl.search", "drrl.rollout", "drrl.loop", "drrl.train", "drrl.settings"),
+    "settings": (
+        "drrl.rollout",
+        "drrl.loop",
+        "drrl.model_free",
+        "drrl.model_based",
+        "drrl.action_space",
+        "drrl.train",
+        "drrl.runs",
+        "drrl.cli",
+    ),
     "model_based.py": ("drrl.model_free", "drrl.train", "drrl.cli"),
     "model_free.py": ("drrl.model_based", "drrl.action_space", "drrl.train", "drrl.cli"),
     "action_space.py": ("drrl.model_based", "drrl.train", "drrl.cli"),
-    "policy_gradient": ("drrl.models", "drrl.loop", "drrl.config", "drrl.train", "drrl.model_free", "drrl.envs"),
+    "policy_gradient": ("drrl.models", "drrl.loop", "drrl.settings", "drrl.train", "drrl.model_free", "drrl.envs"),
     "loop.py": ("drrl.model_free", "drrl.model_based", "drrl.action_space", "drrl.train", "drrl.cli", "drrl.runs"),
-    "search": ("drrl.envs", "drrl.models", "drrl.rollout", "drrl.policies"),
-    "envs": ("drrl.models", "drrl.search", "drrl.rollout", "drrl.policies", "drrl.loop"),
-    "rollout": ("drrl.models", "drrl.search", "drrl.loop", "drrl.train"),
+    "search": ("drrl.envs", "drrl.models", "drrl.rollout", "drrl.policies", "drrl.settings"),
+    "envs": ("drrl.models", "drrl.search", "drrl.rollout", "drrl.policies", "drrl.loop", "drrl.settings"),
+    "rollout": ("drrl.models", "drrl.search", "drrl.loop", "drrl.train", "drrl.settings"),
 }
 
 

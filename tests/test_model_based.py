@@ -12,24 +12,27 @@ from pydantic import ValidationError
 import drrl.model_based
 from drrl.cli import main
 from drrl.compare import DEFAULT_METHODS, MODEL_BASED, PPO, compare, method_config
-from drrl.config import TrainConfig, load_config_file
 from drrl.envs.registry import lookup
 from drrl.loop import better_center, run
 from drrl.model_based import fitting_settings, held_out_loss
 from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig, load_config_file
+from drrl.settings.flat import flattened
 from drrl.train import prepare, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 # 6 real episodes (2 + 2 + 2), a small model fitted briefly, 12 generations of 10 candidates × 4 imagined episodes.
-TINY_MODEL = dict(hidden=(16,), unfold=2, overshoot=6, fit_updates=100, refit_updates=80, generations=12, patience=12)
+TINY_MODEL = dict(
+    hidden=(16,), unfold=2, overshoot=6, fit_updates=100, refit_updates=80, generations_per_iteration=12, patience=12
+)
 SMALL = TrainConfig.model_validate(
     dict(popsize=10, episodes_per_candidate=4, budget=6, eval_episodes=10, seed=1, model_based=TINY_MODEL)
 )
 # Runs that only need to work, not to learn: a few updates and generations.
-QUICK_MODEL = {**TINY_MODEL, "fit_updates": 30, "refit_updates": 30, "generations": 3, "patience": 3}
+QUICK_MODEL = {**TINY_MODEL, "fit_updates": 30, "refit_updates": 30, "generations_per_iteration": 3, "patience": 3}
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +86,7 @@ def test_the_in_model_search_stops_early_once_it_stops_improving():
             episodes_per_candidate=2,
             budget=2,
             eval_episodes=5,
-            model_based={**QUICK_MODEL, "generations": 200},
+            model_based={**QUICK_MODEL, "generations_per_iteration": 200},
         )
     )
     row = train(config).rows[0]
@@ -186,7 +189,16 @@ def test_the_window_shrinks_while_episodes_are_short_first_its_overshooting_then
     assert fitting_settings(FitSettings(unfold=4, overshoot=16), lasting(20, 3)) == FitSettings(unfold=4, overshoot=16)
     # a hand of Blackjack lasts one to three steps: a model-based run fits its model all the same
     hands = tmp_path / "hands"
-    arguments = ["Blackjack-v1", "--model-based", "--budget", "4", "--generations", "2", "--max-steps", "5"]
+    arguments = [
+        "Blackjack-v1",
+        "--model-based",
+        "--budget",
+        "4",
+        "--generations-per-iteration",
+        "2",
+        "--max-steps",
+        "5",
+    ]
     result = CliRunner().invoke(main, ["train", *arguments, "--eval-episodes", "2", "--quiet", "--out", str(hands)])
     assert result.exit_code == 0, result.output
     rows = list(csv.DictReader((hands / "metrics.csv").open()))
@@ -201,7 +213,7 @@ def test_a_model_based_baxter_run_starts_from_the_linear_model_of_its_joints(tmp
     config = TrainConfig.model_validate(
         {
             "env": "baxter-reach-right",
-            "model_based": {"generations": 2, "imagined_horizon": 10},
+            "model_based": {"generations_per_iteration": 2, "imagined_horizon": 10},
             "budget": 8,
             "max_steps": 40,
             "popsize": 4,
@@ -210,7 +222,7 @@ def test_a_model_based_baxter_run_starts_from_the_linear_model_of_its_joints(tmp
         }
     )
     assert config.model_based is not None and config.model_based.model_kind == "linear"
-    assert (config.sigma_init, config.fitness_shaping, config.model_based.initial_episodes) == (
+    assert (config.search.sigma_init, config.search.fitness_shaping, config.model_based.initial_episodes) == (
         0.05,
         "centered_ranks",
         6,
@@ -240,7 +252,7 @@ def test_the_linear_world_model_balances_the_thesis_cart_pole_within_six_real_ep
 def test_model_based_runs_on_both_arms_start_from_more_episodes_and_candidates(env, first, popsize, budget):
     config = TrainConfig.model_validate({"env": env, "model_based": {}})
     assert config.model_based is not None
-    assert (config.model_based.initial_episodes, config.popsize, config.budget) == (first, popsize, budget)
+    assert (config.model_based.initial_episodes, config.search.popsize, config.budget) == (first, popsize, budget)
 
 
 @pytest.mark.parametrize(
@@ -256,7 +268,7 @@ def test_model_based_runs_on_both_arms_start_from_more_episodes_and_candidates(e
     ],
 )
 def test_model_based_settings_are_validated_with_field_value_and_choices(model_based, message):
-    from drrl.config import describe_errors
+    from drrl.settings import describe_errors
 
     with pytest.raises(ValidationError) as error:
         TrainConfig.model_validate({"model_based": model_based})
@@ -275,7 +287,7 @@ def test_model_based_settings_are_validated_with_field_value_and_choices(model_b
     ],
 )
 def test_model_based_runs_are_checked_before_any_work(change, message):
-    config = TrainConfig.model_validate({**SMALL.model_dump(), **change})
+    config = TrainConfig.model_validate({**flattened(SMALL), **change})
     with pytest.raises(ValueError, match=message):
         prepare(config)
 
@@ -289,7 +301,7 @@ def test_mirror_episodes_fit_the_model_to_mirror_images_and_imagine_from_mirrore
 
     monkeypatch.setattr(drrl.model_based, "fit_model", recording)
     config = TrainConfig.model_validate(
-        {**SMALL.model_dump(), "budget": 2, "model_based": {**QUICK_MODEL, "mirror_episodes": True}}
+        {**flattened(SMALL), "budget": 2, "model_based": {**QUICK_MODEL, "mirror_episodes": True}}
     )
     setup = prepare(config)
     try:
@@ -305,7 +317,7 @@ def test_mirror_episodes_fit_the_model_to_mirror_images_and_imagine_from_mirrore
 
 def test_a_config_without_model_based_prepares_a_model_free_run():
     # (prepare_model_based refused a model-free config; the one prepare now builds either kind of run)
-    config = TrainConfig.model_validate({**SMALL.model_dump(), "model_based": None, "budget": 40})
+    config = TrainConfig.model_validate({**flattened(SMALL), "model_based": None, "budget": 40})
     setup = prepare(config)
     try:
         assert setup.world.kind == "model-free" and setup.world.unit == "generation"
@@ -343,7 +355,7 @@ def test_train_model_based_writes_the_run_folder_and_eval_reads_it(tmp_path):
             "lstm",
             "--ensemble",
             "2",
-            "--generations",
+            "--generations-per-iteration",
             "2",
             "--config",
             str(tiny_config(tmp_path)),
@@ -379,7 +391,7 @@ def test_train_model_based_writes_the_run_folder_and_eval_reads_it(tmp_path):
     "args, message",
     [
         (["--overshoot", "4"], "--overshoot only apply to a model-based run; add --model-based"),
-        (["--model-based", "--model-hidden", "16,x"], "--model-hidden: '16,x' is not a comma-separated list"),
+        (["--model-based", "--model-hidden", "16,x"], "'x' is not a whole number in the digits 0-9"),
         (["--model-based", "--overshoot", "-2"], "model_based.overshoot: Input should be greater than or equal to 0"),
         (["--model-based", "--model-kind", "gru"], "'gru' is not one of 'rnn', 'lstm'"),
         (["--model-based", "--budget", "1"], "fewer than model_based.initial_episodes"),
@@ -550,22 +562,31 @@ def test_compare_averages_seeds_on_a_common_grid_of_real_episodes(tmp_path, monk
 
 def test_compare_configs_keep_shared_settings_and_set_each_method():
     settings = {"policy": "linear", "popsize": 6, "model_based": {"hidden": [8]}}
-    assert method_config("REINFORCE-PGPE", 1, 60, settings).sampler == "reinforce"
-    assert method_config("super-symmetric PGPE", 1, 60, settings).popsize == 8  # rounded up to a multiple of 4
+    assert method_config("REINFORCE-PGPE", 1, 60, settings).search.sampler == "single"
+    assert method_config("super-symmetric PGPE", 1, 60, settings).search.popsize == 8  # rounded up to a multiple of 4
     model_based = method_config(MODEL_BASED, 1, 10, settings)
     assert model_based.model_based.hidden == (8,) and model_based.budget == 10 and model_based.policy == "linear"
     assert isinstance(method_config("SyS-PGPE", 1, 60, settings), TrainConfig)
     enac = method_config("eNAC", 1, 64, settings)  # the task's policy, the method's own search settings
-    assert (enac.search, enac.policy, enac.popsize, enac.optimizer) == ("enac", "linear", 32, "clipup")
-    for method, sampler in (("SyS-PGPE", "symmetric"), ("REINFORCE-PGPE", "reinforce")):  # Pendulum's own is CMA-ES
+    assert (enac.search.name, enac.policy, enac.search.popsize, enac.search.optimizer) == (
+        "enac",
+        "linear",
+        32,
+        "clipup",
+    )
+    for method, sampler in (("SyS-PGPE", "symmetric"), ("REINFORCE-PGPE", "single")):  # Pendulum's own is CMA-ES
         pendulum = method_config(method, 1, 51_200, {"env": "Pendulum-v1"})
-        assert (pendulum.search, pendulum.sampler, pendulum.policy) == ("pgpe", sampler, "mlp:16")
+        assert (pendulum.search.name, pendulum.search.sampler, pendulum.policy) == ("pgpe", sampler, "mlp:16")
 
 
 def test_compare_on_the_swing_up_gives_every_method_the_swing_ups_own_settings():
     settings = {"env": "cartpole-swingup"}
     sys_pgpe = method_config("SyS-PGPE", 0, 40_000, settings)
-    assert (sys_pgpe.policy, sys_pgpe.popsize, sys_pgpe.fitness_shaping) == ("mlp:16", 200, "centered_ranks")
+    assert (sys_pgpe.policy, sys_pgpe.search.popsize, sys_pgpe.search.fitness_shaping) == (
+        "mlp:16",
+        200,
+        "centered_ranks",
+    )
     model_based = method_config(MODEL_BASED, 0, 30, settings)
     assert model_based.model_based is not None and model_based.model_based.ensemble_size == 5
     assert method_config("REINFORCE", 0, 4_000, settings).policy == "mlp:16"
@@ -723,8 +744,7 @@ def test_a_search_that_ends_worse_in_the_model_is_undone_when_asked(keep, promis
 
     monkeypatch.setattr(ModelBased, "search_in_model", search_gone_astray)
     monkeypatch.setattr(ModelBased, "imagine_centers", lambda self, centers, iteration: torch.tensor(promised))
-    settings = SMALL.model_based.model_copy(update={"keep_unless_improved": keep})
-    setup = prepare(SMALL.model_copy(update={"model_based": settings, "budget": 2}))
+    setup = prepare(SMALL.updated(model_based={"keep_unless_improved": keep}, budget=2))
     before = setup.search.center.clone()
     rows = run(setup).rows
     assert [row["kept_center"] for row in rows] == [int(undone)]

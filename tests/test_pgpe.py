@@ -84,7 +84,7 @@ def test_reinforce_step_is_2_28_2_29_scaled_by_sigma_squared_with_the_sign_fixed
     pgpe = PGPE(
         torch.zeros(2),
         popsize=2,
-        sampler="reinforce",
+        sampler="single",
         sigma_init=0.5,
         center_lr=0.1,
         sigma_lr=0.2,
@@ -322,8 +322,8 @@ def test_state_saved_between_ask_and_tell_keeps_the_pending_candidates():
 
 def test_state_refuses_a_search_with_other_settings():
     state = PGPE(torch.zeros(3), popsize=4).state_dict()
-    with pytest.raises(ValueError, match=r"sampler='symmetric'.*sampler='reinforce'"):
-        PGPE(torch.zeros(3), popsize=4, sampler="reinforce").load_state_dict(state)
+    with pytest.raises(ValueError, match=r"sampler='symmetric'.*sampler='single'"):
+        PGPE(torch.zeros(3), popsize=4, sampler="single").load_state_dict(state)
     with pytest.raises(ValueError, match="num_params"):
         PGPE(torch.zeros(4), popsize=4).load_state_dict(state)
 
@@ -334,7 +334,7 @@ def test_state_refuses_a_search_with_other_settings():
     [
         (
             dict(sampler="antithetic"),
-            "unknown sampler 'antithetic'; choose one of: reinforce, symmetric, supersymmetric",
+            "unknown sampler 'antithetic'; choose one of: single, symmetric, supersymmetric",
         ),
         (dict(optimizer="rmsprop"), "unknown optimizer 'rmsprop'; choose one of: sgd, adam, clipup"),
         (dict(fitness_shaping="ranks"), "unknown fitness_shaping 'ranks'; choose one of: none, centered_ranks"),
@@ -391,6 +391,6 @@ def test_non_finite_fitness_names_the_candidates_and_leaves_the_search_untouched
 
 
 def test_names_are_exported_for_the_command_line():
-    assert SAMPLERS == ("reinforce", "symmetric", "supersymmetric")
+    assert SAMPLERS == ("single", "symmetric", "supersymmetric")
     assert OPTIMIZERS == ("sgd", "adam", "clipup")
     assert FITNESS_SHAPINGS == ("none", "centered_ranks")

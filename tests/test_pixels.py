@@ -10,11 +10,11 @@ from test_loop import StopAfter, metrics, tensors
 
 import drrl.envs  # noqa: F401  (registers the envs)
 from drrl.cli import main
-from drrl.config import TrainConfig
 from drrl.envs.pixels import FRAME_SIZE, VIEW_HALF_WIDTH, draw_frames
 from drrl.loop import run
 from drrl.models.frames import STILL, Encoding, FrameAutoencoder, fit_autoencoder
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig
 from drrl.train import prepare, resume, subscribers, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -167,7 +167,7 @@ PIXELS = TrainConfig.model_validate(
             refit_updates=20,
             frame_updates=6,
             frame_refit_updates=4,
-            generations=2,
+            generations_per_iteration=2,
             patience=2,
             initial_episodes=2,
             episodes_per_iteration=2,

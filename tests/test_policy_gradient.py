@@ -11,13 +11,13 @@ from click.testing import CliRunner
 from test_loop import StopAfter, metrics, tensors
 
 from drrl.cli import main
-from drrl.config import TrainConfig
 from drrl.envs.batch import make_batch_env
 from drrl.loop import run
 from drrl.policies import make_policy
 from drrl.policy_gradient import ENAC, Episodes, Reinforce, collect, log_probs
 from drrl.rollout import Evaluation, evaluate
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig
 from drrl.train import prepare, resume, subscribers, train
 
 
@@ -119,8 +119,8 @@ def test_training_improves_the_thesis_cart_pole_and_resumes_exactly(tmp_path, me
 @pytest.mark.parametrize(
     ("args", "said"),
     [
-        (["--model-based"], "model_based is for parameter searches"),
-        (["--observation-norm", "true"], "observation_norm is for parameter searches"),
+        (["--model-based"], "search: 'enac' is not one of: 'pgpe', 'cmaes', 'sep-cmaes'"),
+        (["--observation-norm", "true"], "observation_norm: a setting of model-free runs, not of action-space ones"),
         (["--backend", "ray"], "use the local backend"),
     ],
 )

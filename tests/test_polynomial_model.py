@@ -79,7 +79,17 @@ def test_a_remade_polynomial_model_has_its_kind_and_a_fit_gives_the_same_weights
 
 
 def test_a_model_based_run_uses_the_polynomial_model_from_the_command_line(tmp_path):
-    args = ["train", "cartpole", "--model-based", "--model-kind", "polynomial", "--budget", "4", "--generations", "2"]
+    args = [
+        "train",
+        "cartpole",
+        "--model-based",
+        "--model-kind",
+        "polynomial",
+        "--budget",
+        "4",
+        "--generations-per-iteration",
+        "2",
+    ]
     result = CliRunner().invoke(main, [*args, "--eval-episodes", "4", "--quiet", "--out", str(tmp_path / "run")])
     assert result.exit_code == 0, result.output
     assert "done: 2 iterations, 4 real episodes" in result.output

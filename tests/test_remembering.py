@@ -15,7 +15,7 @@ from drrl.envs.batch import make_batch_env
 from drrl.models import ImaginedEnv
 from drrl.models.recurrent import WorldModel
 from drrl.models.remembering import Remembering
-from drrl.models.settings import ModelBasedSettings
+from drrl.settings import ModelBasedSettings
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -92,11 +92,20 @@ def test_a_model_based_run_whose_policy_reads_the_memory_trains_and_is_evaluated
     quick = {"hidden": [16], "unfold": 2, "overshoot": 6, "fit_updates": 30, "refit_updates": 30, "patience": 3}
     config = tmp_path / "memory.json"
     config.write_text(json.dumps({"model_based": quick, "popsize": 8, "episodes_per_candidate": 2, "eval_episodes": 5}))
-    args = ["--config", str(config), "--model-based", "--policy-memory", "--budget", "4", "--generations", "3"]
+    args = [
+        "--config",
+        str(config),
+        "--model-based",
+        "--policy-memory",
+        "--budget",
+        "4",
+        "--generations-per-iteration",
+        "3",
+    ]
     trained = CliRunner().invoke(main, ["train", "cartpole-po", *args, "--quiet", "--out", str(out)])
     assert trained.exit_code == 0, trained.output
     saved = json.loads((out / "config.json").read_text())
-    assert saved["model_based"]["policy_memory"] is True
+    assert saved["world"]["policy_memory"] is True
     evaluated = CliRunner().invoke(main, ["eval", str(out), "--episodes", "3"])
     assert evaluated.exit_code == 0, evaluated.output
     assert "3 episodes: return" in evaluated.output

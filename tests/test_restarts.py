@@ -10,8 +10,8 @@ from click.testing import CliRunner
 
 from drrl.cli import main
 from drrl.compare import curve_budget, method_config
-from drrl.config import TrainConfig
 from drrl.runs import RunFolder, learning_curve
+from drrl.settings import TrainConfig
 from drrl.train import train
 
 CRITERIA = ("balanced", "near_optimal")  # the thesis cart-pole's verdict
@@ -47,7 +47,7 @@ def test_the_learning_curve_marks_every_restart(solving):
 
 def test_each_attempt_starts_from_a_new_centre_and_the_first_is_the_run_without_restarts(solving, tmp_path):
     written = rows(solving)
-    alone = train(SOLVING.model_copy(update={"restart_every": None, "budget": 320}), tmp_path / "alone")
+    alone = train(SOLVING.updated(restart_every=None, budget=320), tmp_path / "alone")
     assert [{k: v for k, v in row.items() if k != "attempt"} for row in written[:40]] == rows(tmp_path / "alone")
     assert alone.generations == 40
     firsts = [float(row["sigma_norm"]) for row in written if int(row["generation"]) % 40 == 1]
@@ -60,7 +60,10 @@ def test_each_attempt_starts_from_a_new_centre_and_the_first_is_the_run_without_
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["cartpole", "--restart-every", "5", "--model-based"], "restart_every starts a model-free parameter search"),
+        (
+            ["cartpole", "--restart-every", "5", "--model-based"],
+            "restart_every: a setting of model-free runs, not of model-based",
+        ),
         (["Walker2d-v5", "--restart-every", "5"], "restart_every: Walker2d-v5 has no verdict"),
         (["cartpole", "--restart-every", "0"], "restart_every"),
     ],
@@ -72,8 +75,8 @@ def test_restarts_are_refused_where_they_cannot_work_in_one_line(tmp_path, args,
 
 
 def test_compare_follows_one_search_one_attempt_long_on_an_env_whose_runs_restart():
-    assert TrainConfig(env="Pendulum-v1").restart_every == 100  # Pendulum-v1's own runs restart
-    assert method_config("SyS-PGPE", 0, 51_200, {"env": "Pendulum-v1"}).restart_every is None
+    assert TrainConfig(env="Pendulum-v1").world.restart_every == 100  # Pendulum-v1's own runs restart
+    assert method_config("SyS-PGPE", 0, 51_200, {"env": "Pendulum-v1"}).world.restart_every is None
     assert curve_budget("Pendulum-v1", 300) == 100 * 64 * 8 and curve_budget("cartpole-swingup", 300) == 40_000
 
 

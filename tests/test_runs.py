@@ -2,8 +2,8 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from drrl.config import TrainConfig
 from drrl.runs import CHECKPOINT, RunFolder, _digest
+from drrl.settings import TrainConfig
 
 
 def test_checkpoint_round_trip_keeps_tensors_values_and_key_types(tmp_path):

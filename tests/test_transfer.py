@@ -8,8 +8,8 @@ from click.testing import CliRunner
 from test_model_based import QUICK_MODEL
 
 from drrl.cli import main
-from drrl.config import TrainConfig
 from drrl.runs import RunFolder
+from drrl.settings import TrainConfig
 from drrl.train import open_run, prepare, prepare_resume, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py

@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import dataclasses
 
-from drrl.config import TrainConfig
 from drrl.loop import TRAINING, Counters, Setup, derive_seed
 from drrl.model_free import ModelFree, counted
 from drrl.policies import Policy
 from drrl.policy_gradient import PolicyGradient, collect
 from drrl.rollout import Workload
 from drrl.rollout.local import LocalBackend
+from drrl.settings import TrainConfig
 
 
 class ActionSpace(ModelFree):
@@ -40,7 +40,7 @@ class ActionSpace(ModelFree):
         assert isinstance(method, PolicyGradient)
         seed = derive_seed(self.config.seed, iteration, TRAINING)
         episodes = collect(method.explorer(), method.center, self.local.env, seed, self.config.max_steps)
-        shift = self.config.reward_shift
+        shift = self.settings.reward_shift
         method.improve(dataclasses.replace(episodes, rewards=episodes.rewards - shift * episodes.alive))
         result = episodes.evaluation
         return counted(counters, iteration, result) | {

@@ -10,19 +10,20 @@ import click
 from pydantic import ValidationError
 
 from drrl import __version__
-from drrl.cli_model_based import compare_command, model_based_options, pop_model_options, with_model_based
+from drrl.cli_model_based import compare_command
 from drrl.cli_params import INTEGER
-from drrl.config import GYMNASIUM_DEFAULTS, TrainConfig, describe_errors, env_defaults, load_config_file
-from drrl.envs.batch import ENGINES, make_batch_env
+from drrl.cli_settings import FLAGS, check_model_options, given_settings, settings_options, with_file
+from drrl.cli_settings import show_settings as show_settings_of
+from drrl.envs.batch import make_batch_env
 from drrl.envs.registry import aliases, lookup
 from drrl.loop import Counters, Setup, derive_seed, measure, one_thread, run, solved
 from drrl.model_based import ModelDiverged
-from drrl.policies import ACCEPTED_FORMS
-from drrl.policy_gradient import POLICY_GRADIENTS
 from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.runs import RunFolder
-from drrl.search import SEARCHES
-from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
+from drrl.settings import TrainConfig, describe_errors, load_config_file
+from drrl.settings.flat import flattened
+from drrl.settings.presets import suggested as suggested_settings
+from drrl.settings.presets import task_preset, task_settings
 from drrl.train import (
     as_read,
     build_policy,
@@ -36,13 +37,6 @@ from drrl.train import (
 
 EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
 ERROR_LOG = "error.log"  # in the run folder: the traceback of whatever stopped the run
-
-
-def setting(name: str, kind, help: str):
-    """A `drrl train` option for TrainConfig field ``name``; left unset, the config file or the default applies."""
-    default = TrainConfig.model_fields[name].default
-    other = f"; Gymnasium's envs: {GYMNASIUM_DEFAULTS[name]}" if name in GYMNASIUM_DEFAULTS else ""
-    return click.option(f"--{name.replace('_', '-')}", name, type=kind, help=f"{help}  [default: {default}{other}]")
 
 
 class Commands(click.Group):
@@ -70,71 +64,6 @@ def main(ctx: click.Context, debug: bool) -> None:
 @click.argument("env_name", required=False, metavar="[ENV]")
 @click.option(
     "--env", "env_option", help=f"Environment: {', '.join(aliases())} or any Gymnasium id (e.g. Pendulum-v1)."
-)
-@setting(
-    "engine",
-    click.Choice(ENGINES),
-    "what steps the env's batch: drrl's own (native), Gymnasium's classic-control tasks compiled (numba, pip install "
-    '"drrl[numba]"), EnvPool (pip install "drrl[envpool]"), Gymnasium\'s envs in turn (gymnasium) or over a process '
-    "per core (processes)",
-)
-@setting("policy", str, ACCEPTED_FORMS)
-@setting(
-    "search",
-    click.Choice((*SEARCHES, *POLICY_GRADIENTS)),
-    "search: PGPE (the thesis), CMA-ES with a full or diagonal covariance, or an action-space policy gradient "
-    "(REINFORCE with a baseline, eNAC)",
-)
-@setting("sampler", click.Choice(SAMPLERS), "PGPE sampler")
-@setting("optimizer", click.Choice(OPTIMIZERS), "step rule for μ")
-@setting("fitness_shaping", click.Choice(FITNESS_SHAPINGS), "fitness shaping")
-@setting("popsize", INTEGER, "candidates per generation")
-@setting("episodes_per_candidate", INTEGER, "real episodes per candidate")
-@setting("budget", INTEGER, "real training episodes to spend")
-@setting("max_steps", INTEGER, "cut episodes longer than this (Gymnasium's envs without a time limit: 1000)")
-@setting("sigma_init", float, "initial σ of every parameter (reinforce, enac: of every action)")
-@setting("center_lr", float, "step size of μ")
-@setting("sigma_lr", float, "learning rate of σ")
-@setting("eval_episodes", INTEGER, "episodes measuring the centre policy")
-@setting("eval_every", INTEGER, "generations between measurements")
-@setting("eval_share", float, "the most of a model-free run's env steps that measuring may take")
-@setting(
-    "observation_norm",
-    click.BOOL,
-    "feed the policy observations normalised by running statistics (unset: on for Gymnasium's envs, model-free)",
-)
-@setting(
-    "reward_shift",
-    float,
-    "taken from every training step's reward the search is told of (a survival bonus; Hopper-v5 starts at 1)",
-)
-@setting("seed", INTEGER, "random seed")
-@setting("checkpoint_every", INTEGER, "generations between checkpoints")
-@setting("stop_when_solved", click.BOOL, "end the run once a measured centre meets every criterion of the task")
-@setting("solved_in_a_row", INTEGER, "with --stop-when-solved: measurements in a row that must meet it first")
-@setting(
-    "restart_every",
-    INTEGER,
-    "generations an attempt of a model-free search lasts; unless its last centre meets every criterion of the task "
-    "(the run then ends), the search starts again from a new random centre",
-)
-@setting(
-    "demonstrations",
-    INTEGER,
-    "real episodes of the env's scripted demonstrator (the stacking tasks' with end-point actions) that the first "
-    "centre is cloned from, counted in the budget",
-)
-@setting(
-    "demonstration_rounds",
-    INTEGER,
-    "rounds the demonstrations are recorded in, each after the first driven by the clone so far",
-)
-@setting("demonstration_noise", float, "std of the noise on the demonstrator's raw actions while recording")
-@setting(
-    "start_from",
-    click.Path(exists=True, file_okay=False),
-    "a run folder whose best measured policy (and world model) this run starts from, e.g. one trained in the "
-    "simulator for a run on the robot",
 )
 @click.option(
     "--config",
@@ -165,7 +94,7 @@ def main(ctx: click.Context, debug: bool) -> None:
     is_flag=True,
     help='also log every metric for TensorBoard into RUN/tensorboard (pip install "drrl[tensorboard]")',
 )
-@model_based_options
+@settings_options
 def train_command(
     env_name,
     env_option,
@@ -178,6 +107,8 @@ def train_command(
     workers,
     tensorboard,
     model_based,
+    assignments,
+    show_settings,
     **options,
 ) -> None:
     """Train a policy on an environment: `drrl train cartpole`, model-based with `--model-based`; `drrl train
@@ -191,9 +122,10 @@ def train_command(
                 ("--config", config_file),
                 ("--out", out),
                 ("--model-based", model_based),
-                *((f"--{name.replace('_', '-')}", value) for name, value in options.items()),
+                ("--set", assignments),
+                *((FLAGS.get(key.replace("__", "."), "--search"), value) for key, value in options.items()),
             ]
-            if value not in (None, False)
+            if value not in (None, False, ())
         ]
         if given:
             raise click.UsageError(
@@ -203,18 +135,20 @@ def train_command(
     if env_name and env_option and env_name != env_option:
         raise click.UsageError(f"two environments given: {env_name!r} and --env {env_option!r}")
     try:
-        settings = load_config_file(config_file) if config_file else {}
+        file_settings = load_config_file(config_file) if config_file else {}
     except ValueError as error:
         raise click.UsageError(str(error)) from None
+    flags = given_settings(options, model_based, assignments)
     if env_name is not None or env_option is not None:
-        settings["env"] = env_name if env_name is not None else env_option
-    model_options = pop_model_options(options)
-    settings.update({key: value for key, value in options.items() if value is not None})
-    settings = with_model_based(settings, model_based, model_options)
+        flags["env"] = env_name if env_name is not None else env_option
+    settings = with_file(file_settings, flags)
+    check_model_options(file_settings, flags, model_based)
     try:
         config = TrainConfig.model_validate(settings)
     except ValidationError as error:
         raise click.UsageError("invalid configuration:\n" + describe_errors(error)) from None
+    if show_settings:
+        return click.echo(show_settings_of(config, config_file, file_settings, flags))
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}")
     made = not out.exists()
@@ -268,20 +202,22 @@ def resume_run(
 LARGER_POLICY = "a larger --policy (mlp:32, mlp:64,64)"
 GENERIC_ADVICE = {  # after a miss with the env's own settings, by the run's kind (``World.kind``)
     "model-free": f"try a larger --budget, more --episodes-per-candidate, another --sigma-init or {LARGER_POLICY}",
-    "model-based": "try a larger --budget (real episodes), more --generations in the model, or another world model "
+    "model-based": "try a larger --budget (real episodes), more --generations-per-iteration in the model, or another "
+    "world model "
     "(--model-kind, --model-hidden, --ensemble 5)",
     "action-space": f"try a larger --budget, another --center-lr (its step size) or {LARGER_POLICY}",
 }
 
 
 def overridden_defaults(setup: Setup) -> dict:
-    """The env's own defaults (model-free or model-based, as the run) that the run set otherwise, the model's own
-    table aside: what to go back to after a miss."""
-    defaults = env_defaults(setup.config.env, model_based=setup.config.model_based is not None)
+    """The env's own preset settings (model-free or model-based, as the run) that the run set otherwise, the model's
+    own table aside: what to go back to after a miss."""
+    kind = "model-based" if setup.config.model_based else "model-free"
+    flat = flattened(setup.config)
     return {
         name: value
-        for name, value in defaults.items()
-        if name != "model_based" and getattr(setup.config, name) != value
+        for name, value in task_settings(setup.config.env, kind).items()
+        if name != "model_based" and flat.get(name) != value
     }
 
 
@@ -289,13 +225,13 @@ def advice_after_a_miss(setup: Setup) -> str:
     """What to try after a run whose centre met none of the task's criteria: the settings that suit the task (the
     entry's own, else the env's defaults the run set otherwise), or with none, what most often helps a run of its
     kind; after a model-free run, a model-based one where drrl has model-based settings for the env."""
-    suggested = setup.entry.suggested or overridden_defaults(setup)
+    suggested = suggested_settings(setup.config.env) or overridden_defaults(setup)
     advice = GENERIC_ADVICE[setup.world.kind]
     if suggested:
         advice = "settings that suit it: " + " ".join(
             f"--{name.replace('_', '-')} {value}" for name, value in suggested.items()
         )
-    if setup.world.kind == "model-free" and setup.entry.model_based_defaults:
+    if setup.world.kind == "model-free" and task_preset(setup.entry.env_id, "model-based"):
         advice += f"; or model-based, with settings measured on it: drrl train {setup.entry.env_id} --model-based"
     return advice
 
@@ -330,7 +266,7 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
     if solved(setup, counters):
         why = (
             "stop_when_solved"
-            if setup.config.stop_when_solved
+            if setup.config.measuring.stop_when_solved
             else f"the end of attempt {counters.rows[-1]['attempt']}"
         )
         click.echo(

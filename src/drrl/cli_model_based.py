@@ -1,7 +1,4 @@
-"""The model-based parts of the ``drrl`` command: ``drrl train --model-based`` options and ``drrl compare``.
-
-Kept beside ``drrl.cli`` so that the command's main module stays small; ``drrl.cli`` adds these to its commands.
-"""
+"""``drrl compare``: the methods side by side on one task, kept beside ``drrl.cli``, which adds it to its commands."""
 
 from __future__ import annotations
 
@@ -11,103 +8,20 @@ from pathlib import Path
 import click
 from pydantic import ValidationError
 
-from drrl.cli_params import INTEGER
-from drrl.compare import DEFAULT_METHODS, METHODS, MODEL_BASED, PPO, compare, curve_budget, method_config
-from drrl.config import describe_errors, env_defaults, load_config_file
+from drrl.compare import (
+    DEFAULT_METHODS,
+    METHODS,
+    MODEL_BASED,
+    PPO,
+    compare,
+    curve_budget,
+    method_config,
+    model_based_budget_of,
+)
 from drrl.envs.batch import is_frames, make_batch_env
-from drrl.models.kinds import MODEL_KINDS
-from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
+from drrl.settings import describe_errors, load_config_file
 
 COMPARE_BUDGET = 300  # real episodes of a model-free run in a comparison: enough for the cart-pole's PGPE to balance
-
-# option name -> ModelBasedSettings field
-MODEL_OPTIONS = {
-    "model_kind": "model_kind",
-    "model_hidden": "hidden",
-    "overshoot": "overshoot",
-    "ensemble": "ensemble_size",
-    "generations": "generations",
-    "policy_memory": "policy_memory",
-}
-
-
-def _default(field: str):
-    return ModelBasedSettings.model_fields[field].default
-
-
-def model_based_options(command):
-    """``--model-based`` and the options of the world model, for ``drrl train``."""
-    options = [
-        click.option(
-            "--model-based",
-            is_flag=True,
-            help="Model-based PGPE: fit a recurrent world model to real "
-            f"episodes and search in it. Its defaults: {MODEL_BASED_DEFAULTS}; popsize and "
-            "episodes-per-candidate then count imagined episodes.",
-        ),
-        click.option(
-            "--model-kind",
-            type=click.Choice(MODEL_KINDS),
-            help="world model: state-space RNN (3.4), LSTM (3.5.2), their layers without memory (mlp), or linear "
-            "or sparse polynomial, fitted by least squares  "
-            f"[default: {_default('model_kind')}]",
-        ),
-        click.option(
-            "--model-hidden", metavar="W[,W...]", help="widths of the world model's stacked layers  [default: 64]"
-        ),
-        click.option(
-            "--overshoot", type=INTEGER, help=f"overshooting steps (3.3.2)  [default: {_default('overshoot')}]"
-        ),
-        click.option(
-            "--ensemble", type=INTEGER, help=f"world models in the ensemble  [default: {_default('ensemble_size')}]"
-        ),
-        click.option(
-            "--generations",
-            type=INTEGER,
-            help=f"most PGPE generations in the model per iteration  [default: {_default('generations')}]",
-        ),
-        click.option(
-            "--policy-memory",
-            is_flag=True,
-            default=None,
-            help="the policy also reads the world model's memory (its hidden state), as World Models' controller "
-            "does: for frames and partially observed tasks",
-        ),
-    ]
-    for option in reversed(options):
-        command = option(command)
-    return command
-
-
-def pop_model_options(options: dict) -> dict:
-    """Take the world-model options out of ``options`` (given ones only), as ModelBasedSettings fields."""
-    taken = {MODEL_OPTIONS[name]: options.pop(name) for name in list(options) if name in MODEL_OPTIONS}
-    given = {field: value for field, value in taken.items() if value is not None}
-    if "hidden" in given:
-        try:
-            given["hidden"] = tuple(int(width) for width in given["hidden"].split(","))
-        except ValueError:
-            raise click.UsageError(
-                f"--model-hidden: {given['hidden']!r} is not a comma-separated list of layer widths such as 64 or 64,64"
-            ) from None
-    return given
-
-
-def with_model_based(settings: dict, model_based: bool, model_options: dict) -> dict:
-    """``settings`` with the world-model options under ``model_based`` (TrainConfig then starts the fields left unset
-    from the model-based defaults). Unchanged for a model-free run, which must not get world-model options."""
-    table = settings.get("model_based")
-    if table is not None and not isinstance(table, dict):
-        return settings  # TrainConfig says what model_based must be
-    model_based = model_based or table is not None
-    if not model_based:
-        if model_options:
-            names = ", ".join(
-                f"--{name.replace('_', '-')}" for name in MODEL_OPTIONS if MODEL_OPTIONS[name] in model_options
-            )
-            raise click.UsageError(f"{names} only apply to a model-based run; add --model-based")
-        return settings
-    return {**settings, "model_based": {**(settings.get("model_based") or {}), **model_options}}
 
 
 def observes_frames(env: str) -> bool:
@@ -134,7 +48,7 @@ def observes_frames(env: str) -> bool:
     "--model-based-budget",
     type=click.IntRange(min=1),
     help="real training episodes of each model-based run  "
-    f"[default: {MODEL_BASED_DEFAULTS['budget']}, or the env's own model-based budget]",
+    "[default: a model-based run's on the env, as drrl train --model-based spends]",
 )
 @click.option(
     "--method",
@@ -168,7 +82,7 @@ def compare_command(env, seeds, budget, model_based_budget, methods, config_file
     if budget is None:
         budget = curve_budget(env, COMPARE_BUDGET)
     if model_based_budget is None:
-        model_based_budget = env_defaults(env, model_based=True).get("budget", MODEL_BASED_DEFAULTS["budget"])
+        model_based_budget = model_based_budget_of(env)
     frames = observes_frames(env)
     methods = methods or ((MODEL_BASED,) if frames else DEFAULT_METHODS)
     if frames and set(methods) != {MODEL_BASED}:

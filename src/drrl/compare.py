@@ -25,10 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from drrl.config import TrainConfig, env_defaults
+from drrl.settings import TrainConfig
+from drrl.settings.flat import FLAT, run_kind, settings_of
+from drrl.settings.presets import task_settings
 from drrl.train import train
 
-MODEL_FREE = {"REINFORCE-PGPE": "reinforce", "SyS-PGPE": "symmetric", "super-symmetric PGPE": "supersymmetric"}
+MODEL_FREE = {"REINFORCE-PGPE": "single", "SyS-PGPE": "symmetric", "super-symmetric PGPE": "supersymmetric"}
 MODEL_BASED = "model-based PGPE"
 ACTION_SPACE = {"REINFORCE": "reinforce", "eNAC": "enac"}
 PPO = "PPO (SB3)"
@@ -36,6 +38,7 @@ METHODS = (*MODEL_FREE, MODEL_BASED, *ACTION_SPACE, PPO)
 DEFAULT_METHODS = METHODS[:-1]  # PPO needs an extra
 # The settings of the task rather than of a method: every method takes them from the shared settings.
 TASK_SETTINGS = ("env", "policy", "max_steps", "eval_episodes", "eval_every", "eval_share", "engine", "device")
+_ANY_RUN = {"search", "model_based", *FLAT}  # the flat settings of some run
 
 
 @dataclass(frozen=True)
@@ -57,18 +60,17 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
     is CMA-ES), keep ``settings``' policy and search settings and measure their centre after every generation
     (``eval_share`` 1, unless ``settings`` say otherwise), for curves as fine as the model-based ones; REINFORCE needs
     no pairs and super-symmetric PGPE needs a popsize divisible by 4, so their popsize is rounded up to 8 where
-    smaller. The action-space methods take the task's settings (``TASK_SETTINGS``) and their own defaults
-    (``POLICY_GRADIENT_DEFAULTS``): PGPE's settings mean nothing to them. On an env with settings of its own (the
-    swing-up's ``EnvEntry.defaults`` and ``model_based_defaults``) every method starts from them, as ``drrl train``
-    does.
+    smaller. The action-space methods take the task's settings (``TASK_SETTINGS``) and their own presets: PGPE's
+    settings mean nothing to them. On an env with presets of its own (the swing-up's) every method starts from them,
+    as ``drrl train`` does. Settings that a method's run does not have (``eval_share`` for a model-based one) are
+    left out of its run.
     """
     base = {key: value for key, value in settings.items() if key != "model_based"}
     if method == MODEL_BASED:
-        return TrainConfig.model_validate(
-            {**base, "budget": budget, "seed": seed, "model_based": settings.get("model_based") or {}}
-        )
+        flat = {**base, "budget": budget, "seed": seed, "model_based": settings.get("model_based") or {}}
+        return TrainConfig.model_validate(_its_own(flat))
     if method in ACTION_SPACE:
-        own = env_defaults(base.get("env", "cartpole"))
+        own = task_settings(base.get("env", "cartpole"), "model-free")
         task = {key: value for key, value in {**own, **base}.items() if key in TASK_SETTINGS}
         return TrainConfig.model_validate(
             {"eval_share": 1.0, **task, "search": ACTION_SPACE[method], "budget": budget, "seed": seed}
@@ -84,13 +86,24 @@ def method_config(method: str, seed: int, budget: int, settings: dict) -> TrainC
     }
     if merged["sampler"] == "supersymmetric" and merged.get("popsize", 8) % 4:
         merged["popsize"] = 8
-    return TrainConfig.model_validate(merged)
+    return TrainConfig.model_validate(_its_own(merged))
+
+
+def _its_own(flat: dict) -> dict:
+    """``flat`` less the settings a run of its kind does not have."""
+    own = settings_of(run_kind(flat), str(flat.get("search", "pgpe")))
+    return {key: value for key, value in flat.items() if key in own or key not in _ANY_RUN}
+
+
+def model_based_budget_of(env: str) -> int:
+    """The real episodes a model-based run on ``env`` spends unless told."""
+    return TrainConfig.model_validate({"env": env, "model_based": {}}).budget
 
 
 def curve_budget(env: str, default: int) -> int:
     """The real episodes a model-free curve on ``env`` spends unless told: the env's own budget, one attempt's where
     its runs restart (Pendulum-v1's), else ``default``."""
-    own = env_defaults(env)
+    own = task_settings(env, "model-free")
     if own.get("restart_every"):
         config = TrainConfig.model_validate({"env": env})
         return int(own["restart_every"]) * config.episodes_per_generation

@@ -32,11 +32,11 @@ import torch
 from gymnasium.vector import VectorEnv
 from threadpoolctl import threadpool_limits
 
-from drrl.config import TrainConfig
 from drrl.envs.registry import EnvEntry
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, evaluate
 from drrl.search.base import Search
+from drrl.settings import ModelFreeSettings, TrainConfig
 
 # independent random streams for training, measuring, demonstrations and restarted searches
 TRAINING, MEASURING, DEMONSTRATING, RESTARTING = 0, 1, 2, 3
@@ -156,7 +156,7 @@ class World(ABC):
         """Restore ``state_dict``."""
 
     def title(self, setup: Setup) -> str:
-        return f"{setup.entry.env_id}, {setup.config.policy} policy, {setup.config.search}"
+        return f"{setup.entry.env_id}, {setup.config.policy} policy, {setup.config.search.name}"
 
     def close(self) -> None:  # noqa: B027 (optional: a world that holds nothing releases nothing)
         """Release what the world holds (its backend)."""
@@ -234,7 +234,7 @@ def solved(setup: Setup, counters: Counters) -> bool:
     verdict, and that step ended an attempt (``restart_every``) or the run stops there (``stop_when_solved``: real
     episodes are the currency, none is spent past a solved centre) once the last ``solved_in_a_row`` measured
     centres all met it."""
-    criteria, config = setup.entry.criteria(), setup.config
+    criteria, config, measuring = setup.entry.criteria(), setup.config, setup.config.measuring
 
     def met(row: dict) -> bool:
         return all(row.get(name) == 1 for name in criteria)
@@ -243,16 +243,17 @@ def solved(setup: Setup, counters: Counters) -> bool:
         return False
     if attempt_ended(config, counters.iteration):
         return True
-    if not config.stop_when_solved:
+    if not measuring.stop_when_solved:
         return False
     measured = (row for row in reversed(counters.rows) if all(row.get(name) in (0, 1) for name in criteria))
-    recent = list(itertools.islice(measured, config.solved_in_a_row))  # the newest measured centres
-    return len(recent) == config.solved_in_a_row and all(map(met, recent))
+    recent = list(itertools.islice(measured, measuring.solved_in_a_row))  # the newest measured centres
+    return len(recent) == measuring.solved_in_a_row and all(map(met, recent))
 
 
 def attempt_ended(config: TrainConfig, iteration: int) -> bool:
     """Whether step ``iteration`` is the last of an attempt of a run with ``restart_every``."""
-    return config.restart_every is not None and iteration > 0 and iteration % config.restart_every == 0
+    every = config.world.restart_every if isinstance(config.world, ModelFreeSettings) else None
+    return every is not None and iteration > 0 and iteration % every == 0
 
 
 def measure(policy: Policy, center: torch.Tensor, env: VectorEnv, max_steps: int | None, seed: int) -> Evaluation:

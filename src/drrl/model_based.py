@@ -38,7 +38,6 @@ import numpy as np
 import torch
 from gymnasium.vector import VectorEnv
 
-from drrl.config import TrainConfig
 from drrl.envs.batch import RegisteredEnv, is_frames
 from drrl.envs.registry import EnvEntry
 from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
@@ -51,10 +50,10 @@ from drrl.models.kinds import fit_model, make_model, remake
 from drrl.models.outcome import LearnedOutcome, fit_outcome
 from drrl.models.recurrent import WorldModel
 from drrl.models.remembering import Remembering
-from drrl.models.settings import ModelBasedSettings
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload, evaluate
 from drrl.search.base import Search
+from drrl.settings import ModelBasedSettings, TrainConfig
 
 # random streams of imagined episodes, model fitting and choosing explorers, apart from training and measuring
 IMAGINING, FITTING, EXPLORING, SEEING = 2, 3, 4, 5
@@ -180,7 +179,9 @@ class ModelBased(World):
         search_start = time.perf_counter()
         imagined = self.imagined_world(self.settings.disagreement_penalty)
         self.backend.use(
-            Workload(self.policy, imagined, config.popsize, config.episodes_per_candidate, config.max_steps)
+            Workload(
+                self.policy, imagined, config.search.popsize, config.search.episodes_per_candidate, config.max_steps
+            )
         )
         before = search.state_dict() if self.settings.keep_unless_improved else None
         old_center = search.center
@@ -309,10 +310,12 @@ class ModelBased(World):
         would only fit the model's errors.
         """
         best, since_best, generation, tied = float("-inf"), 0, 0, 0
-        for generation in range(1, self.settings.generations + 1):
+        for generation in range(1, self.settings.generations_per_iteration + 1):
             seed = derive_seed(self.config.seed, iteration * 1_000_000 + generation, IMAGINING)
             try:
-                evaluation, metrics = run_generation(search, self.backend, seed, reward_shift=self.config.reward_shift)
+                evaluation, metrics = run_generation(
+                    search, self.backend, seed, reward_shift=self.settings.reward_shift
+                )
             except NonFiniteOutput as error:
                 raise ModelDiverged(
                     f"iteration {iteration}, generation {generation}: the model imagined {error}; "
@@ -345,7 +348,7 @@ class ModelBased(World):
     def title(self, setup: Setup) -> str:
         settings = self.settings
         return (
-            f"{setup.entry.env_id}, {self.config.policy} policy, model-based {self.config.search} "
+            f"{setup.entry.env_id}, {self.config.policy} policy, model-based {self.config.search.name} "
             f"({settings.model_kind} {'×'.join(map(str, settings.hidden))}, K = {settings.ensemble_size})"
         )
 

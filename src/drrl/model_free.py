@@ -34,13 +34,13 @@ from collections.abc import Callable
 
 import torch
 
-from drrl.config import TrainConfig
 from drrl.envs.batch import RegisteredEnv
 from drrl.loop import TRAINING, Counters, Learner, Setup, World, attempt_ended, derive_seed, run_generation
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload
 from drrl.rollout.moments import Moments
 from drrl.search.base import Search
+from drrl.settings import ModelBasedSettings, ModelFreeSettings, TrainConfig
 
 
 class ModelFree(World):
@@ -57,20 +57,26 @@ class ModelFree(World):
         workload: Workload,
         new_search: Callable[[int], Search] | None = None,
     ):
-        if config.restart_every is not None and new_search is None:
+        world = config.world
+        assert not isinstance(world, ModelBasedSettings)
+        own = world if isinstance(world, ModelFreeSettings) else None  # an action-space run has none of its own
+        self.restart_every = None if own is None else own.restart_every
+        self.schedule = None if own is None else own.env_schedule
+        if self.restart_every is not None and new_search is None:
             raise ValueError("restart_every needs new_search, to build each attempt's search")
-        self.config, self.policy, self.backend, self.workload = config, policy, backend, workload
+        self.config, self.settings, self.policy, self.backend, self.workload = config, world, policy, backend, workload
         self.new_search = new_search
-        self.moments = Moments.empty(1, policy.observation_size) if config.observation_norm else None
+        norm = own is not None and own.observation_norm
+        self.moments = Moments.empty(1, policy.observation_size) if norm else None
         self.stage = 0  # steps an adaptive env_schedule has taken
 
     @property
     def iterations(self) -> int:
-        return self.config.generations
+        return self.config.total_generations
 
     @property
     def real_budget(self) -> int:
-        return self.config.demonstrations + self.config.generations * self.config.episodes_per_generation
+        return self.config.demonstrations + self.config.total_generations * self.config.episodes_per_generation
 
     def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
         scheduled = self.follow_schedule(counters)
@@ -85,21 +91,21 @@ class ModelFree(World):
                 self.backend,
                 derive_seed(self.config.seed, iteration, TRAINING),
                 self.deployed,
-                self.config.reward_shift,
+                self.settings.reward_shift,
             )
         except NonFiniteOutput as error:
             raise NonFiniteOutput(f"generation {iteration}: {error}; stopped before updating the search") from None
         if self.moments is not None and result.moments is not None:
             self.moments = self.moments.plus(result.moments)
-        schedule = self.config.env_schedule
+        schedule = self.schedule
         if schedule is not None and schedule.advance_at is not None:
             self.stage += int(self.stage < schedule.steps and float(result.returns.median()) >= schedule.advance_at)
         row = counted(counters, iteration, result) | {"sigma_norm": metrics["sigma_norm"], **scheduled}
-        return row | ({} if self.config.restart_every is None else {"attempt": attempt + 1})
+        return row | ({} if self.restart_every is None else {"attempt": attempt + 1})
 
     def attempt(self, iteration: int) -> int:
         """The attempt (0, 1, …) generation ``iteration`` belongs to; 0 without restarts."""
-        every = self.config.restart_every
+        every = self.restart_every
         return 0 if every is None else (iteration - 1) // every
 
     def restarted(self, search: Learner, attempt: int) -> Search:
@@ -114,7 +120,7 @@ class ModelFree(World):
 
     def follow_schedule(self, counters: Counters) -> dict[str, float]:
         """Point the backend at the env of this generation's scheduled option, if any; the option's value."""
-        schedule = self.config.env_schedule
+        schedule = self.schedule
         if schedule is None:
             return {}
         value = schedule.value(counters.real_episodes / self.real_budget, self.stage)
@@ -130,19 +136,19 @@ class ModelFree(World):
         """After the last generation and an attempt's last; else every ``eval_every`` generations if measuring now
         keeps the steps spent measuring within ``eval_share`` of all, a measurement expected to cost as much as the
         earlier ones on average (before any: ``eval_episodes`` episodes as long as the training episodes so far)."""
-        config = self.config
-        if iteration == self.iterations or attempt_ended(config, iteration):
+        settings, episodes = self.settings, self.config.measuring.eval_episodes
+        if iteration == self.iterations or attempt_ended(self.config, iteration):
             return True
-        if iteration % config.eval_every:
+        if iteration % settings.eval_every:
             return False
-        measurements = counters.eval_episodes // config.eval_episodes
+        measurements = counters.eval_episodes // episodes
         expected = (
             counters.eval_steps / measurements
             if measurements
-            else config.eval_episodes * counters.real_steps / counters.real_episodes
+            else episodes * counters.real_steps / counters.real_episodes
         )
         spent = counters.eval_steps + expected
-        return spent <= config.eval_share * (counters.real_steps + spent)
+        return spent <= settings.eval_share * (counters.real_steps + spent)
 
     def deployed(self, params: torch.Tensor) -> torch.Tensor:
         if self.moments is None:
@@ -151,7 +157,7 @@ class ModelFree(World):
 
     def state_dict(self) -> dict:
         state: dict = {} if self.moments is None else {"observation_moments": self.moments.state_dict()}
-        return state | ({"schedule_stage": self.stage} if self.config.env_schedule is not None else {})
+        return state | ({"schedule_stage": self.stage} if self.schedule is not None else {})
 
     def load_state_dict(self, state: dict) -> None:
         if self.moments is not None:
@@ -159,7 +165,7 @@ class ModelFree(World):
         self.stage = int(state.get("schedule_stage", 0))
 
     def checkpoint_due(self, iteration: int) -> bool:
-        return iteration % self.config.checkpoint_every == 0
+        return iteration % self.settings.checkpoint_every == 0
 
     def close(self) -> None:
         self.backend.close()

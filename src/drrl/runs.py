@@ -29,7 +29,8 @@ try:
 except ImportError:  # not on Windows: run folders are then not held
     fcntl = None  # type: ignore[assignment]
 
-from drrl.config import TrainConfig, describe_errors, short_repr
+from drrl.settings import TrainConfig, describe_errors, short_repr
+from drrl.settings.flat import FLAT, is_flat, nested
 
 CONFIG = "config.json"
 METRICS = "metrics.csv"
@@ -92,11 +93,14 @@ class RunFolder:
         _write_atomically(self.path / CONFIG, config.model_dump_json(indent=2) + "\n")
 
     def read_config(self) -> TrainConfig:
+        """config.json; one an older drrl wrote in the flat form is read as its run's settings (``recorded``)."""
         file = self.path / CONFIG
         if not file.is_file():
             raise ValueError(f"{self.path} is not a run folder: it has no {CONFIG}")
         try:
-            return TrainConfig.model_validate_json(file.read_bytes())
+            return TrainConfig.model_validate(recorded(json.loads(file.read_bytes())))
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise ValueError(f"{file} is not JSON: {error}") from None
         except ValidationError as error:
             raise ValueError(f"{file} is not a valid drrl config:\n{describe_errors(error)}") from None
 
@@ -160,10 +164,10 @@ class RunFolder:
                 f"checkpoint in {self.path} does not record the settings it was trained with (written "
                 f"by an older drrl?), so it cannot be matched to its config.json"
             )
-        changed = _differences(config.model_dump(mode="json"), recorded)
+        changed = _differences(config.model_dump(mode="json"), _recorded_form(recorded))
         if changed:
             shown = "; ".join(
-                f"{key}: {short_repr(now, 60)} in {CONFIG}, {short_repr(then, 60)} when trained"
+                f"{_setting_name(key)}: {short_repr(now, 60)} in {CONFIG}, {short_repr(then, 60)} when trained"
                 for key, now, then in changed[:5]
             )
             raise ValueError(
@@ -306,6 +310,28 @@ def _digest(tree: str, tensors: dict[str, torch.Tensor]) -> str:
         digest.update(f"{key}|{tensor.dtype}|{tuple(tensor.shape)}".encode())
         digest.update(tensor.reshape(-1).view(torch.uint8).numpy().tobytes())
     return digest.hexdigest()
+
+
+def recorded(settings: Any) -> Any:
+    """A run's settings as a run folder records them: the nested form, or an older drrl's flat form of every setting,
+    migrated (what the run's parts do not have dropped, renamed settings renamed)."""
+    return nested(settings, legacy=True) if is_flat(settings) else settings
+
+
+def _recorded_form(settings: dict) -> dict:
+    """The settings a checkpoint records, in the nested form as config.json holds them."""
+    if not is_flat(settings):
+        return settings
+    try:
+        return TrainConfig.model_validate(recorded(settings)).model_dump(mode="json")
+    except ValidationError:
+        return settings  # compared as it is: every setting then differs
+
+
+def _setting_name(key: str) -> str:
+    """A setting's flat name, for the place ``key`` (dotted) in the nested form, where it has one."""
+    path = tuple(key.split("."))
+    return next((setting.name for setting in FLAT.values() if setting.path == path), key)
 
 
 def _differences(now: dict, then: dict, prefix: str = "") -> list[tuple[str, Any, Any]]:

@@ -18,8 +18,8 @@ from typing import Any
 from tqdm import tqdm
 
 from drrl.loop import Counters, Setup, Subscriber
-from drrl.models.settings import ModelBasedSettings
 from drrl.runs import RunFolder
+from drrl.settings import ModelBasedSettings
 
 INSTALL_TENSORBOARD = '--tensorboard needs TensorBoard, which is not installed: pip install "drrl[tensorboard]"'
 
@@ -51,7 +51,7 @@ class RunFolderWriter(Subscriber):
                 self.folder.plot_learning_curve(
                     setup.world.title(setup),
                     counters.best_iteration or None,
-                    setup.config.eval_episodes,
+                    setup.config.measuring.eval_episodes,
                     setup.world.training,
                 )
         finally:

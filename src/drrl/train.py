@@ -2,7 +2,7 @@
 
 ``config.model_based`` unset: model-free training (``ModelFree``), every generation on the
 real environment. Set: model-based training (``ModelBased``), generations inside a world
-model fitted to real episodes. ``config.search`` an action-space policy gradient ("reinforce", "enac"): model-free
+model fitted to real episodes. An action-space policy gradient ("reinforce", "enac"): model-free
 updates from episodes that explore by action (``ActionSpace``). All run through the same loop, checkpoints and
 subscribers (the action-space ones on the local backend), and all resume from their checkpoint to exactly the
 metrics of an uninterrupted run.
@@ -20,7 +20,6 @@ from gymnasium.vector import VectorEnv
 
 from drrl.action_space import ActionSpace
 from drrl.cloning import check_clonable, cloned
-from drrl.config import TrainConfig
 from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, is_frames, make_batch_env, observation_size
 from drrl.envs.registry import EnvEntry, is_own, lookup
 from drrl.loop import (
@@ -39,14 +38,22 @@ from drrl.loop import (
 from drrl.model_based import ModelBased, build_model, frame_autoencoder, reading
 from drrl.model_free import ModelFree
 from drrl.models.base import load_weights
-from drrl.models.settings import ModelBasedSettings
 from drrl.policies import Policy, make_policy
-from drrl.policy_gradient import POLICY_GRADIENTS, make_policy_gradient
+from drrl.policy_gradient import make_policy_gradient
 from drrl.rollout import Workload, make_backend
 from drrl.rollout.local import LocalBackend
 from drrl.runs import RunFolder
 from drrl.search import make_search
 from drrl.search.base import Search
+from drrl.settings import (
+    ActionSpaceSettings,
+    Demonstrations,
+    ModelBasedSettings,
+    ModelFreeSettings,
+    PGPESettings,
+    PolicyGradientSettings,
+    TrainConfig,
+)
 from drrl.subscribers import ModelGuard, ProgressBar, RunFolderWriter, TensorBoardLogger
 
 
@@ -78,32 +85,22 @@ def build_search(config: TrainConfig, policy: Policy, discrete: bool, center: to
     if center is None:
         center = policy.initial_center(torch.Generator().manual_seed(config.seed))
     center = center.to(config.device)
-    if config.search in POLICY_GRADIENTS:
+    search = config.search
+    if isinstance(search, PolicyGradientSettings):
         return make_policy_gradient(
-            config.search,
+            search.name,
             policy,
             center,
             discrete=discrete,
-            sigma_init=config.sigma_init,
-            lr=config.center_lr,
-            optimizer=config.optimizer,
+            sigma_init=search.sigma_init,
+            lr=search.center_lr,
+            optimizer=search.optimizer,
             seed=config.seed,
         )
-    pgpe = (
-        {}
-        if config.search != "pgpe"
-        else dict(
-            sampler=config.sampler,
-            center_lr=config.center_lr,
-            sigma_lr=config.sigma_lr,
-            optimizer=config.optimizer,
-            fitness_shaping=config.fitness_shaping,
-            baseline_decay=config.baseline_decay,
-            max_sigma_change=config.max_sigma_change,
-        )
-    )
+    pgpe = {} if not isinstance(search, PGPESettings) else search.model_dump(exclude={"name", "popsize", "sigma_init"})
+    pgpe.pop("episodes_per_candidate", None)
     return make_search(
-        config.search, center, popsize=config.popsize, sigma_init=config.sigma_init, seed=config.seed, **pgpe
+        search.name, center, popsize=search.popsize, sigma_init=search.sigma_init, seed=config.seed, **pgpe
     )
 
 
@@ -121,9 +118,9 @@ def memory_needed(config: TrainConfig, policy: Policy) -> int:
     """A lower bound on the bytes a run holds at once: the candidates' weights and the search's vectors, a
     rollout's observation and action arrays (a few temporaries each), and a world model's weights and the
     imagined episodes' states. The environments' own state comes on top."""
-    slots = config.popsize * config.episodes_per_candidate
-    needed = 4 * policy.num_params * (config.popsize + 8)
-    needed += 8 * 8 * (slots + config.eval_episodes) * (policy.observation_size + policy.action_size)
+    slots = config.episodes_per_generation
+    needed = 4 * policy.num_params * (config.search.popsize + 8)
+    needed += 8 * 8 * (slots + config.measuring.eval_episodes) * (policy.observation_size + policy.action_size)
     if config.model_based is not None:
         model, widths = config.model_based, config.model_based.hidden
         inputs = policy.observation_size + policy.action_size
@@ -140,7 +137,7 @@ def check_memory(config: TrainConfig, policy: Policy) -> None:
     free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else None
     if free is not None and needed > free:
         raise ValueError(
-            f"this run needs at least {needed / 2**30:.1f} GiB ({config.popsize} candidates of a "
+            f"this run needs at least {needed / 2**30:.1f} GiB ({config.search.popsize} candidates of a "
             f"{policy.num_params:,}-weight {config.policy} policy, their episodes"
             f"{', the world model' if config.model_based else ''}), more than the {free / 2**30:.1f} "
             f"GiB free; use a smaller policy, popsize or model"
@@ -148,21 +145,16 @@ def check_memory(config: TrainConfig, policy: Policy) -> None:
 
 
 def resolved(config: TrainConfig, env_id: str) -> TrainConfig:
-    """``config`` with the settings left to drrl decided for ``env_id``: the engine, and observation normalisation
-    (on for envs that are not drrl's own, whose observations can be of any scale; off for model-based runs and
-    action-space policy gradients)."""
-    norm = config.observation_norm
-    searching = config.model_based is None and config.search not in POLICY_GRADIENTS
-    return config.model_copy(
-        update={
-            "engine": choose_engine(env_id, config.engine, with_options=config.env_schedule is not None),
-            "observation_norm": (
-                (not is_own(env_id) and searching and not config.start_from and not config.demonstrations)
-                if norm is None
-                else norm
-            ),
-        }
-    )
+    """``config`` with the settings left to drrl decided for ``env_id``: the engine, and a model-free run's
+    observation normalisation (on for envs that are not drrl's own, whose observations can be of any scale, unless
+    the run starts from another policy)."""
+    world = config.world
+    scheduled = isinstance(world, ModelFreeSettings) and world.env_schedule is not None
+    update: dict = {"engine": choose_engine(env_id, config.engine, with_options=scheduled)}
+    if isinstance(world, ModelFreeSettings) and world.observation_norm is None:
+        norm = not is_own(env_id) and world.start is None
+        update["world"] = world.model_copy(update={"observation_norm": norm})
+    return config.model_copy(update=update)
 
 
 def prepare(
@@ -178,13 +170,17 @@ def prepare(
     world model (``transferred``), one with ``config.demonstrations`` from the clone of the env's demonstrator
     (``demonstrated_start``; ``progress`` shows its episodes)."""
     entry = lookup(config.env)
-    for name in ("stop_when_solved", "restart_every"):
-        if getattr(config, name) and not entry.criteria():
+    settings = config.world
+    restarts = isinstance(settings, ModelFreeSettings) and settings.restart_every is not None
+    for name, given in (("stop_when_solved", config.measuring.stop_when_solved), ("restart_every", restarts)):
+        if given and not entry.criteria():
             raise ValueError(f"{name}: {entry.env_id} has no verdict (no solved level) to stop at")
-    if config.search in POLICY_GRADIENTS and backend != "local":
-        raise ValueError(f"search {config.search} runs its episodes here; use the local backend (--backend local)")
+    if isinstance(settings, ActionSpaceSettings) and backend != "local":
+        raise ValueError(
+            f"search {settings.search.name} runs its episodes here; use the local backend (--backend local)"
+        )
     config = resolved(config, entry.env_id)
-    schedule = config.env_schedule
+    schedule = config.world.env_schedule if isinstance(config.world, ModelFreeSettings) else None
     options = {} if schedule is None else {schedule.option: schedule.start}  # an option the env refuses fails here
     probe = make_batch_env(entry.env_id, 1, config.engine, options)  # its spaces size the policy before anything
     try:
@@ -199,16 +195,16 @@ def prepare(
         probe.close()
     if config.demonstrations and not resuming:
         start = demonstrated_start(config, entry, policy, progress)
-    eval_env = make_batch_env(entry.env_id, config.eval_episodes, config.engine)
+    eval_env = make_batch_env(entry.env_id, config.measuring.eval_episodes, config.engine)
     try:
         search = build_search(config, policy, discrete, start.center)
         workload = Workload(
             policy,
             RegisteredEnv(entry.env_id, config.engine),
-            config.popsize,
-            config.episodes_per_candidate,
+            config.search.popsize,
+            config.search.episodes_per_candidate,
             config.max_steps,
-            moments=bool(config.observation_norm),
+            moments=isinstance(config.world, ModelFreeSettings) and bool(config.world.observation_norm),
         )
         evaluator = make_backend(backend, workload, address=address, workers=workers)
     except BaseException:
@@ -217,7 +213,7 @@ def prepare(
     try:
         if config.model_based:
             world: World = ModelBased(config, entry, policy, eval_env, evaluator, start.model)
-        elif isinstance(evaluator, LocalBackend) and config.search in POLICY_GRADIENTS:
+        elif isinstance(evaluator, LocalBackend) and isinstance(config.world, ActionSpaceSettings):
             world = ActionSpace(config, policy, evaluator, workload)
         else:
             world = ModelFree(
@@ -275,7 +271,7 @@ def transferred(config: TrainConfig, policy: Policy, spaces_here: SpacePair) -> 
     source, checkpoint = open_run(folder)
     if source.policy != config.policy:
         raise ValueError(f"start_from: {folder.path} trained a {source.policy} policy, this run's is {config.policy}")
-    if source.observation_norm:
+    if isinstance(source.world, ModelFreeSettings) and source.world.observation_norm:
         raise ValueError(f"start_from: {folder.path}'s policy reads normalised observations; start from a run without")
     probe = make_batch_env(lookup(source.env).env_id, 1, source.engine)
     try:
@@ -293,14 +289,16 @@ def demonstrated_start(config: TrainConfig, entry: EnvEntry, policy: Policy, pro
     """The policy cloned from ``config.demonstrations`` real episodes of the env's demonstrator (``drrl.cloning``),
     and the real episodes and steps they took."""
     assert entry.demonstrator is not None  # check_clonable
+    demonstrations = config.world.start
+    assert isinstance(demonstrations, Demonstrations)
     center, recorded = cloned(
         policy,
         entry.demonstrator,
         entry.env_id,
-        config.demonstrations,
-        config.demonstration_rounds,
+        demonstrations.episodes,
+        demonstrations.rounds,
         derive_seed(config.seed, 0, DEMONSTRATING),
-        config.demonstration_noise,
+        demonstrations.noise,
         config.engine,
         config.max_steps,
         config.device,
@@ -314,18 +312,11 @@ def same_model(a: ModelBasedSettings, b: ModelBasedSettings) -> bool:
     return all(getattr(a, name) == getattr(b, name) for name in ("model_kind", "hidden", "ensemble_size"))
 
 
-def world_kind(config: TrainConfig) -> str:
-    """The kind of world a run of ``config`` steps, as its checkpoint names it."""
-    if config.model_based:
-        return ModelBased.kind
-    return ActionSpace.kind if config.search in POLICY_GRADIENTS else ModelFree.kind
-
-
 def open_run(folder: RunFolder) -> tuple[TrainConfig, dict]:
     """A run folder's config and checkpoint for eval and render, each checked: the checkpoint trained with exactly
     this config, of its kind, with every counter and centre well formed."""
     config, checkpoint = folder.load_run()
-    check_checkpoint(checkpoint, world_kind(config))
+    check_checkpoint(checkpoint, config.world.kind)
     return config, checkpoint
 
 

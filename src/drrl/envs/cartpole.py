@@ -582,54 +582,6 @@ def swing_up_mirror(observations: np.ndarray, actions: np.ndarray) -> tuple[np.n
     return observations * _SWING_UP_FLIP, -actions
 
 
-# The swing-up's own settings (BENCHMARKS.md, "Model-based PGPE on the swing-up"): a tanh MLP, since a linear policy
-# cannot both pump energy and balance; for its 113 weights a smaller σ and a longer step than the cart-pole's, with
-# ranks. Model-free: 200 candidates × 1 episode a generation, solved after about 110 generations.
-SWING_UP_SETTINGS = {
-    "policy": "mlp:16",
-    "popsize": 200,
-    "episodes_per_candidate": 1,
-    "fitness_shaping": "centered_ranks",
-    "sigma_init": 0.25,
-    "sigma_lr": 0.05,
-    "center_lr": 0.4,
-    "budget": 40_000,
-    "eval_every": 10,
-}
-# Model-based: the same search in the model, 100 generations an iteration without an early stop (it climbs a long
-# plateau, a pole that swings up and turns over, too slowly for an early stop to tell progress); an ensemble of five
-# sparse polynomial models (a cart-pole's accelerations are near-polynomials of sin θ, cos θ, the velocities and the
-# force: they predict many steps ahead from a few episodes, fitted in under a second), also fitted to each real
-# episode's mirror image; the new centre kept only if the model rates it above the old one; after the first two
-# real episodes, one an iteration, the centre's own, so that every real episode is followed by a new model and a new
-# centre; 30 real episodes at most. BENCHMARKS.md has the figures of each step (the LSTM ensemble before it: solved
-# after a median of 18 real episodes).
-SWING_UP_MODEL_BASED_SETTINGS: dict[str, Any] = {
-    **{name: value for name, value in SWING_UP_SETTINGS.items() if name not in ("budget", "eval_every")},
-    "budget": 30,
-    "stop_when_solved": True,  # real episodes are the currency: none spent past a solved centre
-    "model_based": {
-        "model_kind": "polynomial",
-        "ensemble_size": 5,
-        "generations": 100,
-        "patience": 100,
-        "episodes_per_iteration": 1,
-        "mirror_episodes": True,
-        "keep_unless_improved": True,
-    },
-}
-
-# benchmarks/partially_observed.py: a memory is needed, and a small σ with ranks keeps it stable
-PARTIALLY_OBSERVED_SETTINGS = {
-    "policy": "rnn:4",
-    "popsize": 16,
-    "sigma_init": 0.2,
-    "sigma_lr": 0.05,
-    "fitness_shaping": "centered_ranks",
-    "budget": 2000,
-}
-
-
 def _register() -> None:
     """drrl's entries for the three cart-poles."""
     from drrl.envs.registry import EnvEntry, register
@@ -648,7 +600,6 @@ def _register() -> None:
                 "drrl/CartPolePO-v0",
                 "cartpole-po",
                 **balance,  # only (s, θ) observed
-                suggested=PARTIALLY_OBSERVED_SETTINGS,
             ),
             PartiallyObservedTask(),
         ),
@@ -661,8 +612,6 @@ def _register() -> None:
                 swing_up_reward,
                 end_reward=swing_up_failure_reward,
                 mirror=swing_up_mirror,
-                defaults=SWING_UP_SETTINGS,
-                model_based_defaults=SWING_UP_MODEL_BASED_SETTINGS,
             ),
             SwingUpTask(),
         ),

@@ -1,10 +1,9 @@
 """What drrl knows of some of Gymnasium's own tasks beyond their specs: the return usually counted as solved where
-Gymnasium gives none, the settings a model-free run starts from where drrl's defaults for Gymnasium's envs do not
-reach it and these were measured to (BENCHMARKS.md, "Gymnasium's envs with drrl's defaults, beside PPO"), and
-rewards and ends in closed form of the next observation and the reward's share that depends on the action, which a
-model-based run's imagined episodes use instead of learning them (as model-based libraries give a task's termination
-function: a learned end head sees a fall only once an episode), and the observation entries that follow in closed form
-from the others, which imagined observations are completed by."""
+Gymnasium gives none, and rewards and ends in closed form of the next observation and the reward's share that
+depends on the action, which a model-based run's imagined episodes use instead of learning them (as model-based
+libraries give a task's termination function: a learned end head sees a fall only once an episode), and the
+observation entries that follow in closed form from the others, which imagined observations are completed by. The
+settings that suit these tasks are presets (``drrl.settings.presets``)."""
 
 from __future__ import annotations
 
@@ -13,75 +12,6 @@ import math
 import numpy as np
 
 SOLVED_LEVELS = {"Pendulum-v1": -200.0}  # Pendulum-v1's spec has no reward_threshold
-
-DEFAULTS: dict[str, dict] = {
-    # −145.4 over 50 fresh episodes after 51,200 episodes (33 s with EnvPool); PGPE with the same policy stayed below
-    # −800: its one episode a candidate from random starts is too noisy to rank swing-up policies. An attempt of 100
-    # generations reaches −200 in 5 of 10 seeds with σ₀ 0.5, 15 of 20 with 1.0; the others settle on a policy that
-    # spins the pendulum and stay there however long they run. So up to 8 attempts, each from a new random centre,
-    # until one ends at −200 or better.
-    "Pendulum-v1": {
-        "search": "cmaes",
-        "policy": "mlp:16",
-        "popsize": 64,
-        "episodes_per_candidate": 8,
-        "sigma_init": 1.0,
-        "restart_every": 100,
-        "budget": 409600,
-    },
-    # Hopper pays 1 a step for staying up, 1,000 for a hopper that only stays up all episode: told of it, the
-    # defaults ended at 1,333. Taken off every training step, as Augmented Random Search does (Mania et al. 2018,
-    # its "shift"), seeds 0-2 reached 3,032, 3,323 and 2,928 in 3,200 episodes. Not a rule for every locomotion task:
-    # Walker2d-v5 with the same shift learned to fall at once (4.3; 2,023 without).
-    "Hopper-v5": {"reward_shift": 1.0},
-    # Once every candidate holds the poles up, the ranks still tell tiny differences in the distance and velocity
-    # terms apart, and ClipUp's full steps on them carry the centre off to policies that fall from the edge of the
-    # reset noise (measured centres of 9,360 sliding back to 6,200-9,175 within tens to hundreds of generations). A
-    # quarter of the default step, three times the episodes for the slower climb, and an end before that drift, once
-    # two measured centres in a row are solved (the first one at the level may be fragile).
-    "InvertedDoublePendulum-v5": {"center_lr": 0.005, "budget": 9600, "stop_when_solved": True, "solved_in_a_row": 2},
-    # A linear policy ends near -6.8: the torques that bring the fingertip to the target depend on the arm's angles
-    # times the fingertip's offset, which a tanh MLP can form and a linear map cannot. One random target an episode
-    # ranks candidates poorly, so 8 episodes each. The MLP climbs slowly: -5.2 on fresh episodes after 204,800
-    # episodes, -4.7 after 409,600 (8 to 10 minutes with EnvPool). Its centre is measured on 200 episodes (the best
-    # of many 50-episode measurements is chosen partly by luck), within a tenth of the run's steps.
-    "Reacher-v5": {
-        "policy": "mlp:32",
-        "popsize": 32,
-        "episodes_per_candidate": 8,
-        "budget": 409600,
-        "eval_episodes": 200,
-        "eval_share": 0.1,
-    },
-}
-
-
-# The same for a model-based run (BENCHMARKS.md, "Pendulum-v1, model-based beside model-free"): imagined episodes
-# paid by the reward in closed form below, the model-free run's CMA-ES on a tanh MLP, three times the default
-# generations in the model (40 reached −200 within 30 real episodes in 1 of 3 seeds, 120 in 3 of 5), and the model
-# fitted to every episode's mirror image too (then a median of 10 real episodes).
-MODEL_BASED_DEFAULTS: dict[str, dict] = {
-    "Pendulum-v1": {
-        "search": "cmaes",
-        "policy": "mlp:16",
-        "sigma_init": 0.5,
-        "budget": 30,
-        "model_based": {"generations": 120, "patience": 120, "mirror_episodes": True},
-    },
-    # Imagined episodes paid by Reacher's reward and control cost in closed form, its fingertip recomputed from the
-    # predicted joint angles (a learned reward gave -67 to -104). The arm's state is its observation, so an ensemble
-    # of feed-forward models. A tanh MLP policy, searched as the model-free one that comes nearest -5, measured
-    # centres of -5 or better after 116 and 88 real episodes (seeds 0, 1); a linear one stays near -7.
-    "Reacher-v5": {
-        "policy": "mlp:32",
-        "popsize": 32,
-        "episodes_per_candidate": 8,
-        "sigma_init": 0.025,
-        "center_lr": 0.02,
-        "budget": 160,
-        "model_based": {"model_kind": "mlp", "hidden": [64], "ensemble_size": 5, "generations": 200, "patience": 200},
-    },
-}
 
 
 def cartpole_reward(next_observations: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

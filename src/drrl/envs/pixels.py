@@ -23,7 +23,6 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
 from drrl.envs.cartpole import (
-    SWING_UP_MODEL_BASED_SETTINGS,
     BalanceTask,
     CartPoleEnv,
     CartPoleVectorEnv,
@@ -122,33 +121,6 @@ class CartPolePixelsEnv(CartPoleEnv):
         return self._frames.copy()
 
 
-# Model-based from frames: the state task's model-based search on the latent state (the cart-pole's linear policy
-# on the codes and their changes; the swing-up's MLP with an LSTM ensemble), the reward and end learned from it (no
-# closed form reads them off frames), and 20 real episodes before the first fit, which the autoencoder needs to tell
-# positions apart. The balance task adds an ensemble of five with a disagreement penalty: a single model, fitted to
-# 20 short falling episodes, let the search find policies it kept up that fell within ten steps in reality.
-FIRST_FIT = {"initial_episodes": 20, "episodes_per_iteration": 4}
-PIXELS_MODEL_BASED_SETTINGS: dict[str, Any] = {
-    "budget": 50,
-    # a state's mirror image is not its frames' code: Pixels/Pendulum-v1 does not take Pendulum-v1's mirror_episodes
-    "model_based": {**FIRST_FIT, "ensemble_size": 5, "disagreement_penalty": 1.0, "mirror_episodes": False},
-}
-SWING_UP_PIXELS_MODEL_BASED_SETTINGS: dict[str, Any] = {
-    **SWING_UP_MODEL_BASED_SETTINGS,
-    "budget": 50,
-    "model_based": {
-        **SWING_UP_MODEL_BASED_SETTINGS["model_based"],
-        # the LSTM ensemble and explorers it was measured with (a frame's code is not the state a polynomial suits)
-        "model_kind": "lstm",
-        "hidden": (32,),
-        "exploration_bonus": 3.0,
-        "mirror_episodes": False,
-        "keep_unless_improved": False,
-        **FIRST_FIT,
-    },
-}
-
-
 def _register() -> None:
     """drrl's entries for the cart-poles seen through the camera."""
     from drrl.envs.registry import EnvEntry, register
@@ -161,7 +133,6 @@ def _register() -> None:
                 balance_verdict,
                 explain_balance,
                 end_reward=failure_reward,
-                model_based_defaults=PIXELS_MODEL_BASED_SETTINGS,
             ),
             BalanceTask(),
         ),
@@ -172,7 +143,6 @@ def _register() -> None:
                 swing_up_verdict,
                 explain_swing_up,
                 end_reward=swing_up_failure_reward,
-                model_based_defaults=SWING_UP_PIXELS_MODEL_BASED_SETTINGS,
             ),
             SwingUpTask(),
         ),

@@ -6,13 +6,13 @@ action where the task charges it (imagined episodes then use them instead of a l
 entries that follow in closed form from the others (imagined observations are completed by them), the reward of a
 step that ends the episode where the step alone decides it (imagined episodes with a learned end then pay it), the
 task's reflection symmetry where it has one (world models can then learn from every episode's mirror image too), a
-scripted demonstrator where the task has one (a run's first centre can be cloned from its episodes), and settings
-that suit the task. Each environment registers its entry from its own module (``register``), which also registers
-it with Gymnasium; a family of ids made from others, such as ``Pixels/ID`` for any ``ID``, registers each member
-when it is first named (``register_family``).
+scripted demonstrator where the task has one (a run's first centre can be cloned from its episodes). The settings
+that suit a task are presets (``drrl.settings.presets``), not part of its entry. Each environment registers its
+entry from its own module (``register``), which also registers it with Gymnasium; a family of ids made from others,
+such as ``Pixels/ID`` for any ``ID``, registers each member when it is first named (``register_family``).
 An environment that drrl does not know is any registered Gymnasium id; its entry has the verdict "solved" where
-Gymnasium gives the task a ``reward_threshold`` or the field a usual level (a mean return at or above it), and
-settings that reach it where they were measured (``drrl.envs.gymnasium_tasks``).
+Gymnasium gives the task a ``reward_threshold`` or the field a usual level (a mean return at or above it)
+(``drrl.envs.gymnasium_tasks``).
 """
 
 from __future__ import annotations
@@ -20,21 +20,13 @@ from __future__ import annotations
 import difflib
 import importlib
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import gymnasium
 import numpy as np
 import torch
 
-from drrl.envs.gymnasium_tasks import (
-    ACTION_COSTS,
-    COMPLETIONS,
-    DEFAULTS,
-    MIRRORS,
-    MODEL_BASED_DEFAULTS,
-    REWARDS,
-    SOLVED_LEVELS,
-)
+from drrl.envs.gymnasium_tasks import ACTION_COSTS, COMPLETIONS, MIRRORS, REWARDS, SOLVED_LEVELS
 
 # (episode_returns (P, E), terminated (P, E)) -> {criterion: met}
 Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
@@ -70,9 +62,6 @@ class EnvEntry:
     end_reward: EndReward | None = None  # a terminating step's reward where only the step decides it (5.8's failure)
     mirror: Mirror | None = None  # the task's reflection symmetry, e.g. the cart-poles' left-right flip
     demonstrator: Demonstrator | None = None  # a scripted policy a run's first centre can be cloned from
-    suggested: dict = field(default_factory=dict)  # TrainConfig settings that suit the task
-    defaults: dict = field(default_factory=dict)  # TrainConfig settings a model-free run on the task starts from
-    model_based_defaults: dict = field(default_factory=dict)  # the same for a model-based run, with its table
 
     def criteria(self) -> tuple[str, ...]:
         """The names of the verdict's criteria (metrics.csv columns); none without a verdict."""
@@ -192,25 +181,17 @@ def _listed(names) -> str:
     return ", ".join(shown) + " (`drrl train --help` lists them all)"
 
 
-UNLIMITED_EPISODE_CUT = 1000  # steps: an env without a time limit of its own (CliffWalking) would never end
-
-
 def gymnasium_entry(env_id: str) -> EnvEntry:
     """The entry of a Gymnasium env drrl has no module for: solved at its spec's ``reward_threshold`` (or the usual
-    level), if there is one, with the settings known to reach it and its reward in closed form where drrl knows
-    it. An env without a time limit of its own has its episodes cut after ``UNLIMITED_EPISODE_CUT`` steps by
-    default (``max_steps``), as Gymnasium's MuJoCo tasks are: an episode a policy never ends would stall a run."""
+    level), if there is one, with its reward in closed form where drrl knows it."""
     spec = gymnasium.spec(env_id)
     threshold = SOLVED_LEVELS.get(env_id) if spec.reward_threshold is None else spec.reward_threshold
-    cut = {} if spec.max_episode_steps else {"max_steps": UNLIMITED_EPISODE_CUT}
     entry = EnvEntry(
         env_id,
         reward=REWARDS.get(env_id),
         action_cost=ACTION_COSTS.get(env_id),
         complete_observation=COMPLETIONS.get(env_id),
         mirror=MIRRORS.get(env_id),
-        defaults={**cut, **DEFAULTS.get(env_id, {})},
-        model_based_defaults={**cut, **MODEL_BASED_DEFAULTS.get(env_id, {})},
     )
     if threshold is None:
         return entry

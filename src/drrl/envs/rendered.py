@@ -26,7 +26,7 @@ from gymnasium.wrappers import AddRenderObservation, FrameStackObservation
 
 from drrl.envs.batch import cannot_be_made
 from drrl.envs.baxter.model import import_mujoco
-from drrl.envs.pixels import FRAME_SIZE, FRAMES, PIXELS_MODEL_BASED_SETTINGS
+from drrl.envs.pixels import FRAME_SIZE, FRAMES
 from drrl.envs.registry import EnvEntry, lookup, register, register_family
 from drrl.envs.serial import make_env
 
@@ -99,18 +99,7 @@ def pixel_member(env_id: str) -> None:
         raise cannot_be_made(inner.env_id, error) from None
     if "rgb_array" not in getattr(creator, "metadata", {}).get("render_modes", ()):
         raise ValueError(f"{inner.env_id} does not render rgb_array frames, so {env_id} cannot observe them")
-    preset = inner.model_based_defaults
-    entry = EnvEntry(
-        env_id,
-        verdict=inner.verdict,
-        explain=inner.explain,
-        end_reward=inner.end_reward,
-        model_based_defaults={
-            **preset,
-            **PIXELS_MODEL_BASED_SETTINGS,
-            "model_based": {**preset.get("model_based", {}), **PIXELS_MODEL_BASED_SETTINGS["model_based"]},
-        },
-    )
+    entry = EnvEntry(env_id, verdict=inner.verdict, explain=inner.explain, end_reward=inner.end_reward)
     horizon = spec.max_episode_steps  # the inner env's own limit, for imagined episodes
     register(entry, f"{__name__}:make_pixels", kwargs={"env_id": inner.env_id}, max_episode_steps=horizon)
 

@@ -14,11 +14,9 @@ from drrl.models.kinds import MODEL_KINDS
 from drrl.models.linear import LinearModel
 from drrl.models.polynomial import PolynomialModel
 from drrl.models.recurrent import FUTURE_INPUTS, WorldModel, unfolding_loss, window_losses
-from drrl.models.settings import MODEL_BASED_DEFAULTS, ModelBasedSettings
 
 __all__ = [
     "FUTURE_INPUTS",
-    "MODEL_BASED_DEFAULTS",
     "MODEL_KINDS",
     "MODEL_OPTIMIZERS",
     "Episode",
@@ -30,7 +28,6 @@ __all__ = [
     "ImaginedWorld",
     "LearnedModel",
     "LinearModel",
-    "ModelBasedSettings",
     "PolynomialModel",
     "Prediction",
     "RewardFunction",

@@ -5,7 +5,7 @@ is told their fitness (returns, higher is better) and moves μ and σ along a li
 The search never sees an environment: where the returns come from is the caller's business.
 
 Samplers
-    "reinforce"       θ_p ~ N(μ, σ²), p = 1..P; 2.28–2.29 with the baseline b of 2.33.
+    "single"          θ_p ~ N(μ, σ²), p = 1..P; 2.28–2.29 with the baseline b of 2.33.
     "symmetric"       SyS: pairs μ ± ε, ε ~ N(0, σ²); 2.31–2.32 with the baseline b of 2.33 (the thesis's choice).
     "supersymmetric"  SupSyS (Sehnke 2013, the thesis's ref. [21]): quadruples μ ± ε, μ ± ε*, where ε* mirrors ε
                       about the median of |ε|; the σ step compares the two pairs and needs no baseline.
@@ -16,7 +16,7 @@ Candidate layout: "symmetric" asks (μ+ε_1, μ-ε_1, μ+ε_2, μ-ε_2, ...); "s
 Departures from the thesis, and why
     * 2.26 and 2.28 carry a sign typo: ∇_μ log N(θ | μ, σ²) = (θ − μ)/σ², not (μ − θ)/σ². With the typo
       REINFORCE would descend.
-    * "reinforce" scales the likelihood-ratio gradient by σ², as Sehnke et al. 2008/2010 (ref. [22]) do: with
+    * "single" scales the likelihood-ratio gradient by σ², as Sehnke et al. 2008/2010 (ref. [22]) do: with
       t = θ − μ and s = (t² − σ²)/σ, Δμ = α mean_p (r_p − b) t_p and Δσ = α_σ mean_p (r_p − b) s_p. This is 2.28–2.29
       times σ², which puts them on the same footing as 2.31–2.32 (a natural-gradient-like step for a diagonal
       Gaussian).
@@ -53,8 +53,8 @@ from drrl.search.shaping import FITNESS_SHAPINGS, shape_fitness
 
 __all__ = ["FITNESS_SHAPINGS", "OPTIMIZERS", "PGPE", "SAMPLERS", "mirror_about_median"]
 
-SAMPLERS = ("reinforce", "symmetric", "supersymmetric")
-CANDIDATES_PER_DRAW = {"reinforce": 1, "symmetric": 2, "supersymmetric": 4}  # popsize must be a multiple
+SAMPLERS = ("single", "symmetric", "supersymmetric")
+CANDIDATES_PER_DRAW = {"single": 1, "symmetric": 2, "supersymmetric": 4}  # popsize must be a multiple
 
 STATE_KEYS = {
     "sampler",
@@ -191,7 +191,7 @@ class PGPE(Search):
         mu = self._mu.detach()
         draws = self.popsize // CANDIDATES_PER_DRAW[self.sampler]
         eps = self._sigma * self._standard_normal(draws)
-        if self.sampler == "reinforce":
+        if self.sampler == "single":
             self._noise = eps
             return mu + eps
         if self.sampler == "supersymmetric":
@@ -240,7 +240,7 @@ class PGPE(Search):
         """Ascent directions (g_μ, g_σ) for the sampler from the shaped fitness r of the last ask's directions eps;
         the steps are lr times these."""
         sigma, b = self._sigma, self._baseline
-        if self.sampler == "reinforce":  # 2.28–2.29, ×σ² (Sehnke et al.), sign typo fixed
+        if self.sampler == "single":  # 2.28–2.29, ×σ² (Sehnke et al.), sign typo fixed
             advantage = (r - b)[:, None]
             return (advantage * eps).mean(0), (advantage * (eps.square() - sigma.square()) / sigma).mean(0)
         pairs = r.view(-1, 2)  # (r⁺, r⁻) per row of eps

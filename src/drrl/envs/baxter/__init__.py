@@ -53,37 +53,6 @@ ENVIRONMENTS: dict[
 }
 
 
-def model_based_settings(arms: tuple[str, ...]) -> dict[str, Any]:
-    """What a model-based run on a reach with ``arms`` moving starts from (``drrl train baxter-reach-right
-    --model-based``): the linear world model of the joints (``drrl.models.linear``; the recurrent ones, fitted on the
-    violent first episodes, do not carry over to a reach), six first real episodes per arm, a search of up to 100
-    generations in the model on imagined episodes of 300 steps (a reach takes about one second; 2000 imagined steps
-    would cost seven times as much search), and the search settings that learn the reach model-free (README).
-
-    Both arms take twelve first episodes and 60 candidates a generation: fitted on six, the model of both arms (69
-    features) picks centres that fail in reality within half a second (1 of 4 seeds reached); with twelve, 9 of 10
-    seeds reach, and the tenth's 20 candidates (of a 560-weight policy) all fail in the model, the search drifts
-    to a centre that fails in reality within 0.2 s and stays there: with 60 it reaches after 14 real episodes.
-    BENCHMARKS.md has the runs.
-    """
-    both = len(arms) > 1
-    return {
-        "budget": 50 if both else 30,
-        "popsize": 60 if both else 20,
-        "sigma_init": 0.05,
-        "sigma_lr": 0.05,
-        "center_lr": 0.15,
-        "fitness_shaping": "centered_ranks",
-        "model_based": {
-            "model_kind": "linear",
-            "initial_episodes": 12 if both else 6,
-            "imagined_horizon": 300,
-            "generations": 100,
-            "patience": 20,
-        },
-    }
-
-
 for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
     _judged: dict[str, Any] = {"verdict": reach_verdict, "explain": explain_reach} if _thesis_reward else {}
     _task = ReachTask(**{name: value for name, value in _options.items() if name != "stand_in"})
@@ -93,7 +62,6 @@ for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
             _alias,
             reward=partial(_task.observed_reward, tie_break=TIE_BREAK, stillness=STILLNESS),
             complete_observation=_task.complete_observation,
-            model_based_defaults=model_based_settings(_options["arms"]),
             **_judged,
         ),
         "drrl.envs.baxter.env:BaxterReachEnv",
@@ -101,18 +69,6 @@ for _alias, (_env_id, _options, _thesis_reward) in ENVIRONMENTS.items():
         _options,
     )
 
-# A model-free run on a task the scripted stacker does starts from its clone (drrl.cloning): a tanh network of
-# 128 × 128 fitted to 64 of its real episodes, then PGPE with perturbations small enough that most candidates still
-# stack (BENCHMARKS.md, learning to stack).
-CLONED = {
-    "policy": "mlp:128,128",
-    "demonstrations": 64,
-    "popsize": 8,
-    "budget": 128,
-    "sigma_init": 0.002,
-    "center_lr": 0.002,
-    "eval_episodes": 20,
-}
 STACKING: dict[str, tuple[str, dict[str, Any], bool]] = {  # alias, Gymnasium id, task options, thesis reward
     "baxter-stack": ("drrl/BaxterStack-v0", {}, True),  # a stack of two, fixed positions: the thesis's setting
     "baxter-stack-random": ("drrl/BaxterStackRandom-v0", {"positions": "random"}, True),
@@ -148,7 +104,6 @@ for _alias, (_env_id, _options, _thesis_reward) in STACKING.items():
             verdict=stack_verdict if _thesis_reward else None,
             explain=explain_stack if _thesis_reward else None,
             demonstrator=ScriptedStacker(StackTask(**_options)).act if _scripted else None,
-            defaults=CLONED if _scripted else {},
         ),
         "drrl.envs.baxter.stack_env:BaxterStackEnv",
         "drrl.envs.baxter.stack_env:BaxterStackVectorEnv",

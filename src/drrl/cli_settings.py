@@ -1,0 +1,238 @@
+"""``drrl train``'s settings options, drawn from the settings schema: one option per flat setting
+(``drrl.settings.flat``) with the field's own description, ``--set NAME=VALUE`` for any setting, and
+``--show-settings``."""
+
+from __future__ import annotations
+
+import tomllib
+import types
+import typing
+from pathlib import Path
+
+import click
+from pydantic import BaseModel
+from pydantic.fields import FieldInfo
+
+from drrl.cli_params import INTEGER
+from drrl.settings import TrainConfig
+from drrl.settings.flat import FLAT, TABLE, FlatSetting, flattened, layers_for, merged
+from drrl.settings.parts import PARAMETER_SEARCHES, POLICY_GRADIENTS
+
+SEARCH_HELP = "the search: PGPE (the thesis), CMA-ES with a full or diagonal covariance, or an action-space policy "
+SEARCH_HELP += "gradient (REINFORCE with a baseline, eNAC)"
+NOT_FLAGS = {"env"}  # the command's argument (and --env)
+
+
+def flag_of(setting: FlatSetting) -> str | None:
+    """The option that sets ``setting``, or None: a model-based table's setting has one only where its field names
+    it (``json_schema_extra["flag"]``); a table of its own (env_schedule) is set in a file or by --set."""
+    extra = setting.field.json_schema_extra if isinstance(setting.field.json_schema_extra, dict) else {}
+    if setting.name.startswith(f"{TABLE}."):
+        return f"--{extra['flag']}" if "flag" in extra else None
+    if setting.name in NOT_FLAGS or _is_table(setting.field):
+        return None
+    return f"--{setting.name.replace('_', '-')}"
+
+
+def _is_table(field: FieldInfo) -> bool:
+    kinds = typing.get_args(field.annotation) or (field.annotation,)
+    return any(isinstance(kind, type) and issubclass(kind, BaseModel) for kind in kinds)
+
+
+def _param_type(setting: FlatSetting):
+    field = setting.field
+    extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
+    choices = extra.get("choices")
+    if isinstance(choices, list):
+        return click.Choice([str(choice) for choice in choices])
+    if setting.name == "start_from":
+        return click.Path(exists=True, file_okay=False)
+    kinds = {kind for kind in typing.get_args(field.annotation) or (field.annotation,) if kind is not type(None)}
+    if kinds == {bool}:
+        return click.BOOL
+    if kinds == {int}:
+        return INTEGER
+    if kinds == {float}:
+        return float
+    if typing.get_origin(field.annotation) is tuple or field.annotation is tuple[int, ...]:
+        return WIDTHS
+    return str
+
+
+class Widths(click.ParamType):
+    """Layer widths, W[,W...], in ASCII digits."""
+
+    name = "W[,W...]"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        return tuple(INTEGER.convert(width, param, ctx) for width in str(value).split(","))
+
+
+WIDTHS = Widths()
+
+
+def help_of(setting: FlatSetting) -> str:
+    default = setting.field.default
+    shown = "" if default is None or isinstance(default, types.FunctionType) else f"  [default: {_shown(default)}]"
+    return f"{setting.field.description or ''}{shown}"
+
+
+def _shown(value) -> str:
+    return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
+
+
+FLAGS = {setting.name: flag for setting in FLAT.values() if (flag := flag_of(setting))}
+
+
+def settings_options(command):
+    """The settings options of ``drrl train``: every flat setting's own option, --search, --set, --show-settings."""
+    options = [
+        click.option(
+            "--search",
+            "search",
+            type=click.Choice((*PARAMETER_SEARCHES, *POLICY_GRADIENTS)),
+            help=f"{SEARCH_HELP}  [default: pgpe]",
+        ),
+        *(_option(name, flag) for name, flag in FLAGS.items()),
+        click.option(
+            "--model-based",
+            is_flag=True,
+            help="Model-based PGPE: fit a world model to real episodes and search in it (its settings: "
+            "model_based.*); popsize and episodes-per-candidate then count imagined episodes.",
+        ),
+        click.option(
+            "--set",
+            "assignments",
+            multiple=True,
+            metavar="NAME=VALUE",
+            help="any setting, by its name in a config file, e.g. --set model_based.disagreement_penalty=1 (the value "
+            "as TOML reads it; repeat the option)",
+        ),
+        click.option(
+            "--show-settings",
+            is_flag=True,
+            help="print the settings the run would use and where each came from (default, preset, file, flag), "
+            "then stop",
+        ),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
+def _key(name: str) -> str:
+    """The command function's keyword for the setting ``name`` (a table's dot is not one)."""
+    return name.replace(".", "__")
+
+
+def _option(name: str, flag: str):
+    """The option of the flat setting ``name``: a world model's on/off setting is a flag, the rest take a value."""
+    kind = _param_type(FLAT[name])
+    if kind is click.BOOL and name.startswith(f"{TABLE}."):
+        return click.option(flag, _key(name), is_flag=True, default=None, help=help_of(FLAT[name]))
+    return click.option(flag, _key(name), type=kind, help=help_of(FLAT[name]))
+
+
+def given_settings(options: dict, model_based: bool, assignments: tuple[str, ...]) -> dict:
+    """The flat settings the options give (unset ones left out); a model-based table where asked for."""
+    settings: dict = {}
+    for key, value in options.items():
+        name = key.replace("__", ".")
+        if value is None:
+            continue
+        if name.startswith(f"{TABLE}."):
+            settings.setdefault(TABLE, {})[name.removeprefix(f"{TABLE}.")] = value
+        else:
+            settings[name] = value
+    for assignment in assignments:
+        name, value = parse_assignment(assignment)
+        if name.startswith(f"{TABLE}."):
+            settings.setdefault(TABLE, {})[name.removeprefix(f"{TABLE}.")] = value
+        else:
+            settings[name] = value
+    if model_based:
+        settings.setdefault(TABLE, {})
+    return settings
+
+
+def parse_assignment(assignment: str) -> tuple[str, object]:
+    """``NAME=VALUE`` as (name, value): the value as TOML reads it, else as the text it is."""
+    name, equals, text = assignment.partition("=")
+    name = name.strip()
+    if not equals or not name:
+        raise click.UsageError(f"--set {assignment!r}: give NAME=VALUE, e.g. --set model_based.ensemble_size=5")
+    if name not in FLAT and name not in ("search", "env", "env_schedule"):
+        raise click.UsageError(f"--set {assignment!r}: {name!r} is not a setting; `drrl train --help` lists them")
+    try:
+        value = tomllib.loads(f"value = {text}")["value"]
+    except tomllib.TOMLDecodeError:
+        value = text
+    return name, value
+
+
+def with_file(file_settings: dict, given: dict) -> dict:
+    """The file's flat settings with the options' over them, a model_based table merged setting by setting."""
+    settings = {**file_settings, **given}
+    if isinstance(file_settings.get(TABLE), dict) and isinstance(given.get(TABLE), dict):
+        settings[TABLE] = {**file_settings[TABLE], **given[TABLE]}
+    return settings
+
+
+def check_model_options(file_settings: dict, given: dict, model_based: bool) -> None:
+    """A world model's options without a model-based run (--model-based, or a model_based table in the file) are
+    refused in one line."""
+    if not model_based and file_settings.get(TABLE) is None and given.get(TABLE):
+        names = ", ".join(FLAGS.get(f"{TABLE}.{name}", f"--set {TABLE}.{name}") for name in given[TABLE])
+        raise click.UsageError(f"{names} only apply to a model-based run; add --model-based")
+
+
+def show_settings(config: TrainConfig, file: Path | None, file_settings: dict, flags: dict) -> str:
+    """The settings of ``config``, each with where it came from: the schema's default, a preset, the file, a flag."""
+    user = with_file(file_settings, flags)
+    layers = [
+        *((f"preset {name}", preset) for name, preset in layers_for(user)),
+        (f"file {file}", file_settings),
+        ("flag", flags),
+    ]
+    sources = merged(layers)[1]
+    flat = flattened(config)
+    table = flat.pop(TABLE, None)
+    lines = [f"settings of a {config.world.kind} run on {config.env}:"]
+    lines += [_line(name, value, sources.get(name, "default")) for name, value in flat.items()]
+    if table is not None:
+        lines.append(f"[{TABLE}]")
+        lines += [_line(name, value, sources.get(f"{TABLE}.{name}", "default")) for name, value in table.items()]
+    return "\n".join(lines)
+
+
+def reference_table() -> str:
+    """Every setting as a Markdown table (the settings reference page): its name in a config file, its option, its
+    default and its one description."""
+    rows = ["| setting | option | default | what it is |", "| --- | --- | --- | --- |"]
+    for name, setting in FLAT.items():
+        default = setting.field.default
+        shown = "" if default is None or callable(default) or repr(default) == "PydanticUndefined" else _toml(default)
+        flag = FLAGS.get(name, "--set" if name != "env" else "ENV, --env")
+        rows.append(f"| `{name}` | `{flag}` | {f'`{shown}`' if shown else ''} | {setting.field.description or ''} |")
+    return "\n".join(rows)
+
+
+def _line(name: str, value, source: str) -> str:
+    text = f"{name} = {_toml(value)}"
+    return f"{text:48} # {source}"
+
+
+def _toml(value) -> str:
+    if value is None:
+        return "(unset)"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(map(_toml, value)) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{key} = {_toml(item)}" for key, item in value.items()) + "}"
+    return str(value)
