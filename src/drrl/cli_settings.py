@@ -15,11 +15,9 @@ from pydantic.fields import FieldInfo
 
 from drrl.cli_params import INTEGER
 from drrl.settings import TrainConfig
-from drrl.settings.flat import FLAT, TABLE, FlatSetting, flattened, layers_for, merged
+from drrl.settings.flat import FLAT, SEARCH_DESCRIPTION, TABLE, FlatSetting, flattened, layers_for, merged
 from drrl.settings.parts import PARAMETER_SEARCHES, POLICY_GRADIENTS
 
-SEARCH_HELP = "the search: PGPE (the thesis), CMA-ES with a full or diagonal covariance, or an action-space policy "
-SEARCH_HELP += "gradient (REINFORCE with a baseline, eNAC)"
 NOT_FLAGS = {"env"}  # the command's argument (and --env)
 
 
@@ -76,7 +74,7 @@ WIDTHS = Widths()
 def help_of(setting: FlatSetting) -> str:
     default = setting.field.default
     shown = "" if default is None or isinstance(default, types.FunctionType) else f"  [default: {_shown(default)}]"
-    return f"{setting.field.description or ''}{shown}"
+    return f"{setting.field.description or ''}{shown}"  # a task's preset may set it otherwise: --show-settings
 
 
 def _shown(value) -> str:
@@ -93,7 +91,7 @@ def settings_options(command):
             "--search",
             "search",
             type=click.Choice((*PARAMETER_SEARCHES, *POLICY_GRADIENTS)),
-            help=f"{SEARCH_HELP}  [default: pgpe]",
+            help=f"{SEARCH_DESCRIPTION}  [default: pgpe, or the task's preset]",
         ),
         *(_option(name, flag) for name, flag in FLAGS.items()),
         click.option(

@@ -102,7 +102,8 @@ def _table() -> dict[str, FlatSetting]:
 
 FLAT = _table()
 SEARCH_DESCRIPTION = (
-    "the search: pgpe (the thesis), cmaes, sep-cmaes, or an action-space policy gradient: reinforce, enac"
+    "the search: PGPE (the thesis), CMA-ES with a full or diagonal covariance, or an action-space policy gradient "
+    "(REINFORCE with a baseline, eNAC)"
 )
 
 
@@ -209,7 +210,7 @@ def _renamed(flat: dict) -> dict:
 def flat_name(location: tuple) -> str:
     """The flat name of a setting at ``location`` in the nested form (as validation errors give it)."""
     tags = {*WORLDS, *SEARCHES, Demonstrations.__name__, StartFrom.__name__}
-    parts = [str(part) for part in location if str(part) not in tags]
+    parts = [str(part) for index, part in enumerate(location) if not (index and str(part) in tags)]
     model_based = "model-based" in map(str, location)
     for setting in FLAT.values():
         table = setting.name.startswith(f"{TABLE}.")
