@@ -9,8 +9,8 @@ PPO as an outside reference, the same measuring for all (``drrl.compare.method_r
                  "center_lr": 0.15}' \\
         --action '{"optimizer": "adam", "center_lr": 0.001, "sigma_init": 0.3}'
 
-PGPE (SyS) runs with drrl's defaults, or the task's suggested settings (``drrl.settings.presets.suggested``), or ``--pgpe``;
-REINFORCE and eNAC with their own defaults (their presets) or ``--action``, every method with
+PGPE (SyS) runs with drrl's defaults, or the task's suggested settings (``drrl.settings.presets.suggested``), or
+``--pgpe``; REINFORCE and eNAC with their own presets or ``--action``, every method with
 ``--policy`` (PPO with its own networks). The centre is measured on ``--eval-episodes`` episodes after every
 ``--eval-every`` updates (PPO: after every update). A seed that never met a criterion counts as worse than any
 that did. Prints a Markdown table; every run's rows go to ``--out`` as one JSON line as soon as it ends.
