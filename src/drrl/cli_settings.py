@@ -5,13 +5,13 @@
 from __future__ import annotations
 
 import tomllib
-import types
 import typing
 from pathlib import Path
 
 import click
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
+from pydantic_core import PydanticUndefined
 
 from drrl.cli_params import INTEGER
 from drrl.settings import TrainConfig
@@ -72,13 +72,19 @@ WIDTHS = Widths()
 
 
 def help_of(setting: FlatSetting) -> str:
-    default = setting.field.default
-    shown = "" if default is None or isinstance(default, types.FunctionType) else f"  [default: {_shown(default)}]"
+    default = default_of(setting)
+    shown = (
+        ""
+        if default is None
+        else f"  [default: {','.join(map(str, default)) if isinstance(default, tuple) else default}]"
+    )
     return f"{setting.field.description or ''}{shown}"  # a task's preset may set it otherwise: --show-settings
 
 
-def _shown(value) -> str:
-    return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
+def default_of(setting: FlatSetting):
+    """The schema's default of ``setting``; None where it has none (unset, required, or a part made afresh)."""
+    default = setting.field.default
+    return None if default is PydanticUndefined else default
 
 
 FLAGS = {setting.name: flag for setting in FLAT.values() if (flag := flag_of(setting))}
@@ -136,16 +142,8 @@ def _option(name: str, flag: str):
 def given_settings(options: dict, model_based: bool, assignments: tuple[str, ...]) -> dict:
     """The flat settings the options give (unset ones left out); a model-based table where asked for."""
     settings: dict = {}
-    for key, value in options.items():
-        name = key.replace("__", ".")
-        if value is None:
-            continue
-        if name.startswith(f"{TABLE}."):
-            settings.setdefault(TABLE, {})[name.removeprefix(f"{TABLE}.")] = value
-        else:
-            settings[name] = value
-    for assignment in assignments:
-        name, value = parse_assignment(assignment)
+    given = [(key.replace("__", "."), value) for key, value in options.items() if value is not None]
+    for name, value in [*given, *map(parse_assignment, assignments)]:
         if name.startswith(f"{TABLE}."):
             settings.setdefault(TABLE, {})[name.removeprefix(f"{TABLE}.")] = value
         else:
@@ -172,10 +170,7 @@ def parse_assignment(assignment: str) -> tuple[str, object]:
 
 def with_file(file_settings: dict, given: dict) -> dict:
     """The file's flat settings with the options' over them, a model_based table merged setting by setting."""
-    settings = {**file_settings, **given}
-    if isinstance(file_settings.get(TABLE), dict) and isinstance(given.get(TABLE), dict):
-        settings[TABLE] = {**file_settings[TABLE], **given[TABLE]}
-    return settings
+    return merged([("file", file_settings), ("flag", given)])[0]
 
 
 def check_model_options(file_settings: dict, given: dict, model_based: bool) -> None:
@@ -210,8 +205,8 @@ def reference_table() -> str:
     default and its one description."""
     rows = ["| setting | option | default | what it is |", "| --- | --- | --- | --- |"]
     for name, setting in FLAT.items():
-        default = setting.field.default
-        shown = "" if default is None or callable(default) or repr(default) == "PydanticUndefined" else _toml(default)
+        default = default_of(setting)
+        shown = "" if default is None else _toml(default)
         flag = FLAGS.get(name, "--set" if name != "env" else "ENV, --env")
         rows.append(f"| `{name}` | `{flag}` | {f'`{shown}`' if shown else ''} | {setting.field.description or ''} |")
     return "\n".join(rows)

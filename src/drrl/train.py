@@ -97,8 +97,8 @@ def build_search(config: TrainConfig, policy: Policy, discrete: bool, center: to
             optimizer=search.optimizer,
             seed=config.seed,
         )
-    pgpe = {} if not isinstance(search, PGPESettings) else search.model_dump(exclude={"name", "popsize", "sigma_init"})
-    pgpe.pop("episodes_per_candidate", None)
+    apart = {"name", "popsize", "sigma_init", "episodes_per_candidate"}  # given to make_search, or not the search's
+    pgpe = search.model_dump(exclude=apart) if isinstance(search, PGPESettings) else {}
     return make_search(
         search.name, center, popsize=search.popsize, sigma_init=search.sigma_init, seed=config.seed, **pgpe
     )

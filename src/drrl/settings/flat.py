@@ -4,7 +4,7 @@ In the flat form every setting has one short name (``popsize``, ``observation_no
 model-based run's world is a ``model_based`` table; ``nested`` turns it into the parts of ``TrainConfig``. A run's
 settings are layers merged in one order: the schema's defaults, the presets of its task (``presets.presets_for``),
 the user's file, then the command line's flags, a later layer's setting over an earlier one's (a ``model_based``
-table merged setting by setting). ``layered`` keeps where each setting came from, for ``drrl train
+table merged setting by setting). ``merged`` also says where each setting came from, for ``drrl train
 --show-settings``.
 
 Each flat name is a field of one part; ``FLAT`` says which. A setting of a part the run does not have (a sampler for
@@ -67,6 +67,10 @@ class FlatSetting:
     path: tuple[str, ...]  # in TrainConfig's nested form
     field: FieldInfo
     owners: tuple[str, ...]
+
+    def belongs_to(self, kind: str, search: str) -> bool:
+        """Whether a run of world ``kind`` with ``search`` has this setting."""
+        return "run" in self.owners or kind in self.owners or search in self.owners
 
 
 def _table() -> dict[str, FlatSetting]:
@@ -166,7 +170,7 @@ def nested(flat: dict, legacy: bool = False) -> dict:
         raise ValueError(f"{TABLE}: Input should be a valid dictionary, a table of settings (got {table!r:.60})")
     for key, value in given.items():
         setting = FLAT.get(key)
-        owned = setting is not None and ("run" in setting.owners or kind in setting.owners or search in setting.owners)
+        owned = setting is not None and setting.belongs_to(kind, search)
         if key in START and owned:
             start_part, field_name = START[key]
             if value not in (None, 0) or key not in ("demonstrations", "start_from"):
@@ -233,11 +237,8 @@ def owners_of(name: str) -> tuple[str, ...]:
 
 def settings_of(kind: str, search: str) -> set[str]:
     """The flat names a run of world ``kind`` and ``search`` has (its model_based table's prefixed)."""
-    return {
-        name
-        for name, setting in FLAT.items()
-        if "run" in setting.owners or kind in setting.owners or search in setting.owners
-    } | {"search", *([TABLE] if kind == "model-based" else [])}
+    own = {name for name, setting in FLAT.items() if setting.belongs_to(kind, search)}
+    return own | {"search", *([TABLE] if kind == "model-based" else [])}
 
 
 def flattened(config: RunSettings) -> dict:
@@ -246,7 +247,7 @@ def flattened(config: RunSettings) -> dict:
     flat: dict = {"search": config.search.name}
     kind, search = config.world.kind, config.search.name
     for name, setting in FLAT.items():
-        if "run" not in setting.owners and kind not in setting.owners and search not in setting.owners:
+        if not setting.belongs_to(kind, search):
             continue
         if name in START:
             start = config.world.start
