@@ -38,8 +38,9 @@ from evotorch.algorithms import PGPE
 from evotorch.neuroevolution import GymNE, VecGymNE
 
 from drrl.envs.batch import choose_engine
-from drrl.loop import TRAINING, derive_seed, run_generation
+from drrl.loop import run_generation
 from drrl.settings import TrainConfig
+from drrl.streams import Stream, derive_seed
 from drrl.train import prepare
 
 SIGMA_INIT, CENTER_LR, SIGMA_LR, MAX_SIGMA_CHANGE = 1.0, 0.1, 0.01, 0.2
@@ -74,7 +75,7 @@ class Drrl:
 
     def step(self) -> int:
         self.generation += 1
-        seed = derive_seed(self.setup.config.seed, self.generation, TRAINING)
+        seed = derive_seed(self.setup.config.seed, self.generation, Stream.TRAINING)
         evaluation, _ = run_generation(self.setup.search, self.setup.world.backend, seed)
         return evaluation.steps
 

@@ -23,11 +23,12 @@ import torch
 
 from drrl.envs.batch import RegisteredEnv, make_batch_env
 from drrl.envs.registry import lookup
-from drrl.model_based import build_model, collect, episode_horizon, fitting_settings
+from drrl.model_based import build_model, collect, episode_horizon
 from drrl.models import EpisodeBuffer
-from drrl.models.imagined import ImaginedEnv
+from drrl.models.imagined import ImaginedEnv, TaskKnowledge
 from drrl.models.kinds import fit_model
 from drrl.models.quality import k_step_errors
+from drrl.models.trainer import fitting_settings
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
@@ -80,9 +81,7 @@ def main() -> None:
                 10,
                 env.single_action_space,
                 horizon,
-                entry.reward,
-                0.0,
-                entry.complete_observation,
+                TaskKnowledge(entry.reward, complete_observation=entry.complete_observation),
             )
             imagined.append(float(evaluate(policy, center[None], world, 10, seed=args.seed + 3).returns[0]))
         print(f"{name}: real return {real:.0f}; imagined over {args.imagined_horizon} / all steps {np.round(imagined)}")

@@ -19,13 +19,13 @@ from pathlib import Path
 
 from drrl.envs.batch import make_batch_env
 from drrl.envs.baxter.stacking import stacked_fraction
-from drrl.loop import derive_seed, measure
+from drrl.loop import measure
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
+from drrl.streams import Stream, derive_seed
 from drrl.train import build_policy, open_run, train, trained_center
 
 EPISODES = 50
-FRESH = 7  # the measuring stream of these episodes: none of training's or measuring's
 
 
 def run_seed(env: str, seed: int, settings: dict, folder: Path) -> dict:
@@ -37,7 +37,7 @@ def run_seed(env: str, seed: int, settings: dict, folder: Path) -> dict:
     episodes = make_batch_env(env, EPISODES, config.engine)
     policy = build_policy(config, episodes)
     center = trained_center(checkpoint, policy)
-    result = measure(policy, center, episodes, config.max_steps, derive_seed(seed, 0, FRESH))
+    result = measure(policy, center, episodes, config.max_steps, derive_seed(seed, 0, Stream.BENCHMARKING))
     episodes.close()
     return {
         "seed": seed,

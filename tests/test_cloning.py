@@ -14,9 +14,9 @@ from drrl.cloning import Demonstrations, clone, cloned, demonstrated
 from drrl.envs.baxter.scripted import ScriptedStacker
 from drrl.envs.baxter.stack_env import BaxterStackVectorEnv
 from drrl.envs.registry import lookup
-from drrl.loop import DEMONSTRATING, derive_seed
 from drrl.policies import make_policy
 from drrl.settings import TrainConfig, describe_errors
+from drrl.streams import Stream, derive_seed
 from drrl.train import prepare
 
 GAINS = np.array([0.3, 0.2, -1.5, -0.4], dtype=np.float32)  # a linear demonstrator on the thesis cart-pole
@@ -117,7 +117,7 @@ def test_a_run_from_demonstrations_counts_them_as_real_episodes_and_starts_from_
     try:
         assert setup.spent == (2, 60)
         entry = lookup("baxter-stack-end-point")
-        seed = derive_seed(config.seed, 0, DEMONSTRATING)
+        seed = derive_seed(config.seed, 0, Stream.DEMONSTRATING)
         noise = config.world.start.noise
         expected, _ = cloned(setup.policy, entry.demonstrator, entry.env_id, 2, 1, seed, noise, max_steps=30)
         torch.testing.assert_close(setup.search.center, expected)

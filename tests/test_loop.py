@@ -6,6 +6,7 @@ import csv
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 import torch
 
@@ -14,6 +15,7 @@ from drrl.loop import Counters, Subscriber, run, solved
 from drrl.rollout.moments import Moments
 from drrl.runs import RunFolder
 from drrl.settings import ModelBasedSettings, TrainConfig
+from drrl.streams import GENERATION_STEPS, Stream, derive_seed, imagined_seed
 from drrl.train import prepare, resume, subscribers, train
 
 SOURCE = Path(__file__).parents[1] / "src" / "drrl"
@@ -227,6 +229,7 @@ LAYER_RULES = {  # a module (or package) -> drrl modules it must not import, dir
     "search": ("drrl.envs", "drrl.models", "drrl.rollout", "drrl.policies", "drrl.settings"),
     "envs": ("drrl.models", "drrl.search", "drrl.rollout", "drrl.policies", "drrl.loop", "drrl.settings"),
     "rollout": ("drrl.models", "drrl.search", "drrl.loop", "drrl.train", "drrl.settings"),
+    "streams.py": ("drrl",),  # the lowest: numpy only
 }
 
 
@@ -347,3 +350,39 @@ def test_solved_in_a_row_counts_measured_centres_only_and_needs_the_last_step_me
     assert not done(no, unmeasured, yes)
     assert not done(yes)
     assert not done(yes, yes, unmeasured)
+
+
+# ------------------------------------------------------------------------------------------------ the random streams
+
+
+def test_every_stream_keeps_its_number_and_only_the_two_old_pairs_share_one():
+    """A stream's number is part of every seed a run draws: they stay as they were, and only the two pairs that
+    never meet in one run (a model-based world has no demonstrations or restarts) share a number."""
+    numbers = {name: int(stream) for name, stream in Stream.__members__.items()}
+    assert numbers == {
+        "TRAINING": 0,
+        "MEASURING": 1,
+        "DEMONSTRATING": 2,
+        "RESTARTING": 3,
+        "IMAGINING": 2,
+        "FITTING": 3,
+        "EXPLORING": 4,
+        "SEEING": 5,
+        "EVALUATING": 6,
+        "BENCHMARKING": 7,
+    }
+    shared = {name for name, stream in Stream.__members__.items() if stream.name != name}
+    assert shared == {"IMAGINING", "FITTING"}
+    assert not {"demonstrations", "restart_every"} & set(ModelBasedSettings.model_fields)
+    for model_free_only in ({"demonstrations": 4}, {"restart_every": 5}):
+        with pytest.raises(ValueError, match=f"{next(iter(model_free_only))}"):
+            TrainConfig.model_validate({"model_based": {}, **model_free_only})
+
+
+def test_an_in_model_generation_has_steps_of_the_imagining_stream_no_other_use_can_take():
+    assert imagined_seed(3, 2, 7) == int(np.random.SeedSequence([3, 2_000_007, 2]).generate_state(1)[0])
+    assert derive_seed(3, 2, Stream.IMAGINING) == int(np.random.SeedSequence([3, 2, 2]).generate_state(1)[0])
+    with pytest.raises(ValueError, match="imagined_seed"):
+        derive_seed(3, 2_000_007, Stream.IMAGINING)
+    with pytest.raises(ValueError, match="generation"):
+        imagined_seed(3, 2, GENERATION_STEPS)

@@ -9,13 +9,13 @@ import pytest
 from click.testing import CliRunner
 from pydantic import ValidationError
 
-import drrl.model_based
+import drrl.models.trainer
 from drrl.cli import main
 from drrl.compare import DEFAULT_METHODS, MODEL_BASED, PPO, compare, method_config
 from drrl.envs.registry import lookup
 from drrl.loop import better_center, run
-from drrl.model_based import fitting_settings, held_out_loss
-from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings
+from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings, TaskKnowledge
+from drrl.models.trainer import fitting_settings, held_out_loss
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig, load_config_file
 from drrl.settings.flat import flattened
@@ -109,7 +109,9 @@ def test_an_in_model_search_whose_candidates_all_tie_says_so_and_widens_sigma():
         dict(popsize=10, episodes_per_candidate=2, budget=2, eval_episodes=5, model_based=QUICK_MODEL)
     )
     setup = prepare(config)
-    setup.world.known_reward = lambda observations, steps: (np.zeros(len(observations)), np.zeros(len(steps), bool))
+    setup.world.task = TaskKnowledge(
+        lambda observations, steps: (np.zeros(len(observations)), np.zeros(len(steps), bool))
+    )
     start_center, start_sigma = setup.search.center, setup.search.sigma
     row = run(setup).rows[0]
     assert row["tied_generations"] == row["generations"] == 3
@@ -120,7 +122,7 @@ def test_an_in_model_search_whose_candidates_all_tie_says_so_and_widens_sigma():
 def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypatch):
     """The second iteration's warm-started fit is made to look a million times worse: the model is fitted again
     from new weights with the first fit's updates, and that fit, far better, is kept and reported."""
-    real_fit, calls, inflated = drrl.model_based.fit_model, [], []
+    real_fit, calls, inflated = drrl.models.trainer.fit_model, [], []
 
     def fit(model, buffer, settings, seed, split_seed, mirror):
         reports = real_fit(model, buffer, settings, seed, split_seed, mirror)
@@ -130,7 +132,7 @@ def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypa
             inflated.append(held_out_loss(reports))
         return reports
 
-    monkeypatch.setattr("drrl.model_based.fit_model", fit)
+    monkeypatch.setattr("drrl.models.trainer.fit_model", fit)
     model = {**QUICK_MODEL, "fit_updates": 40, "refit_updates": 30, "initial_episodes": 10}
     config = TrainConfig.model_validate(
         dict(popsize=10, episodes_per_candidate=2, budget=12, eval_episodes=5, model_based=model)
@@ -293,13 +295,13 @@ def test_model_based_runs_are_checked_before_any_work(change, message):
 
 
 def test_mirror_episodes_fit_the_model_to_mirror_images_and_imagine_from_mirrored_starts_too(monkeypatch):
-    mirrors, fit_model = [], drrl.model_based.fit_model
+    mirrors, fit_model = [], drrl.models.trainer.fit_model
 
     def recording(*args):
         mirrors.append(args[-1])
         return fit_model(*args)
 
-    monkeypatch.setattr(drrl.model_based, "fit_model", recording)
+    monkeypatch.setattr(drrl.models.trainer, "fit_model", recording)
     config = TrainConfig.model_validate(
         {**flattened(SMALL), "budget": 2, "model_based": {**QUICK_MODEL, "mirror_episodes": True}}
     )
@@ -404,7 +406,7 @@ def test_train_refuses_bad_model_based_options(tmp_path, args, message):
 
 
 def test_a_diverging_model_stops_the_run_and_keeps_the_data_and_the_model(tmp_path, monkeypatch):
-    import drrl.model_based as model_based
+    import drrl.models.trainer as model_based
 
     # The checkpoint keeps the last whole iteration, so the model diverges in the second fit (iteration 2): the
     # real episodes and the model of iteration 1 must survive it.
@@ -443,14 +445,20 @@ def test_a_diverging_model_stops_the_run_and_keeps_the_data_and_the_model(tmp_pa
 
 
 @pytest.mark.parametrize(
-    "model_based", [{}, {"model_kind": "polynomial", "mirror_episodes": True, "keep_unless_improved": True}]
+    ("model_based", "older"),
+    [
+        ({}, False),
+        ({"model_kind": "polynomial", "mirror_episodes": True, "keep_unless_improved": True}, False),
+        ({}, True),
+    ],
 )
 def test_a_stopped_model_based_run_resumes_from_the_command_line_to_the_uninterrupted_metrics(
-    tmp_path, monkeypatch, model_based
+    tmp_path, monkeypatch, model_based, older
 ):
     # (--resume refused model-based runs before; now it continues them exactly, the timing columns aside; the
-    # second case is the swing-up's model and loop)
-    import drrl.model_based as model_based_loop
+    # second case is the swing-up's model and loop; the third a checkpoint as an older drrl wrote it, without the
+    # model trainer's state)
+    import drrl.models.trainer as model_based_loop
 
     config = str(tiny_config(tmp_path, **model_based))
     args = ["train", "cartpole", "--model-based", "--budget", "6", "--config", config, "--quiet"]
@@ -467,6 +475,11 @@ def test_a_stopped_model_based_run_resumes_from_the_command_line_to_the_uninterr
     stopped = CliRunner().invoke(main, [*args, "--out", str(out)])
     assert stopped.exit_code == 1 and f"continue with: drrl train --resume {out}" in stopped.output
     monkeypatch.setattr(model_based_loop, "fit_model", real_fit)
+    if older:
+        folder = RunFolder(out)
+        checkpoint = folder.load_checkpoint()
+        del checkpoint["world"]["trainer"]
+        folder.save_checkpoint(checkpoint)
     resumed = CliRunner().invoke(main, ["train", "--resume", str(out), "--quiet"])
     assert resumed.exit_code == 0, resumed.output
     assert f"resuming {out} at iteration 3 of 3" in resumed.output and "done: 3 iterations" in resumed.output
@@ -734,7 +747,7 @@ def test_a_search_that_ends_worse_in_the_model_is_undone_when_asked(keep, promis
     promises here given: new, old) is undone to its whole state before the search; otherwise it stands."""
     import torch
 
-    from drrl.model_based import ModelBased
+    from drrl.model_based import InModelSearch
 
     def search_gone_astray(self, search, counters, iteration):
         state = search.state_dict()
@@ -742,8 +755,8 @@ def test_a_search_that_ends_worse_in_the_model_is_undone_when_asked(keep, promis
         search.load_state_dict(state)
         return 1, 0
 
-    monkeypatch.setattr(ModelBased, "search_in_model", search_gone_astray)
-    monkeypatch.setattr(ModelBased, "imagine_centers", lambda self, centers, iteration: torch.tensor(promised))
+    monkeypatch.setattr(InModelSearch, "generations", search_gone_astray)
+    monkeypatch.setattr(InModelSearch, "imagine_centers", lambda self, centers, iteration: torch.tensor(promised))
     setup = prepare(SMALL.updated(model_based={"keep_unless_improved": keep}, budget=2))
     before = setup.search.center.clone()
     rows = run(setup).rows
@@ -758,5 +771,7 @@ def test_the_new_and_the_old_centre_are_imagined_on_the_same_starts(one_thread):
     setup = prepare(SMALL)
     run(setup)
     center = setup.search.center
-    returns = setup.world.imagine_centers(torch.stack([center, center, torch.zeros_like(center)]), iteration=7)
+    returns = setup.world.imagination.imagine_centers(
+        torch.stack([center, center, torch.zeros_like(center)]), iteration=7
+    )
     assert returns[0] == returns[1] and returns[2] != returns[0]

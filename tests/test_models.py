@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from drrl.envs.batch import make_batch_env
 from drrl.envs.cartpole import BalanceTask, PartiallyObservedTask, SwingUpTask, failure_reward
 from drrl.envs.registry import lookup
-from drrl.models import Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv, WorldModel
+from drrl.models import Episode, EpisodeBuffer, EpisodeRecorder, FitSettings, ImaginedEnv, TaskKnowledge, WorldModel
 from drrl.models import fit as fit_module
 from drrl.models.data import STILL, with_mirror_images
 from drrl.models.fit import clip_member_gradients, fit, split_episodes, split_offsets
@@ -429,9 +429,8 @@ def test_the_imagined_env_is_a_vector_env_that_evaluate_runs_unchanged():
     torch.manual_seed(0)
     ensemble = WorldModel(4, 1, (8,), members=2)
     action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
-    env = ImaginedEnv(
-        ensemble, cartpole_starts(), 4 * 3, action_space, horizon=20, known_reward=lookup("drrl/CartPole-v0").reward
-    )
+    task = TaskKnowledge(reward=lookup("drrl/CartPole-v0").reward)
+    env = ImaginedEnv(ensemble, cartpole_starts(), 4 * 3, action_space, horizon=20, task=task)
     observations, _ = env.reset(seed=[11, 12, 13] * 4)
     assert observations.shape == (12, 4)
     assert {tuple(o) for o in observations} <= {tuple(s) for s in cartpole_starts()}  # real starts only
@@ -458,7 +457,9 @@ def test_imagined_observations_are_completed_before_the_reward_and_the_policy_re
         return np.zeros(len(observations)), np.zeros(len(observations), dtype=bool)
 
     action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
-    env = ImaginedEnv(WorldModel(4, 1, (8,)), cartpole_starts(), 3, action_space, 10, reward, 0.0, complete)
+    env = ImaginedEnv(
+        WorldModel(4, 1, (8,)), cartpole_starts(), 3, action_space, 10, TaskKnowledge(reward, None, complete)
+    )
     first, _ = env.reset(seed=[1, 2, 3])
     for step in range(1, 4):
         observations = env.step(np.zeros((3, 1), np.float32))[0]

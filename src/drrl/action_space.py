@@ -3,7 +3,7 @@
 One step of the loop (``drrl.loop.run``) is one update: run the stochastic policy around θ for ``popsize`` ×
 ``episodes_per_candidate`` real episodes at once, every action drawn (``drrl.policy_gradient.episodes``), then step θ
 and the actions' σ along the method's gradient (REINFORCE with a baseline, or eNAC). Everything else is the
-model-free run's (``ModelFree``): real steps and episodes counted exactly by ``drrl.rollout.evaluate``, θ measured
+model-free run's (``RealWorld``): real steps and episodes counted exactly by ``drrl.rollout.evaluate``, θ measured
 on separate episodes within ``eval_share`` of the steps, the best centre kept, checkpoints every
 ``checkpoint_every`` updates, and an exact resume (the action noise comes from the method's generator, in its state;
 episode starts from the run seed and the update).
@@ -16,16 +16,17 @@ from __future__ import annotations
 
 import dataclasses
 
-from drrl.loop import TRAINING, Counters, Setup, derive_seed
-from drrl.model_free import ModelFree, counted
+from drrl.loop import Counters, Setup
+from drrl.model_free import RealWorld, counted
 from drrl.policies import Policy
 from drrl.policy_gradient import PolicyGradient, collect
 from drrl.rollout import Workload
 from drrl.rollout.local import LocalBackend
 from drrl.settings import TrainConfig
+from drrl.streams import Stream, derive_seed
 
 
-class ActionSpace(ModelFree):
+class ActionSpace(RealWorld[PolicyGradient]):
     """Every update from real episodes that explore by action, stepped here on ``backend``'s env."""
 
     kind, unit = "action-space", "generation"
@@ -35,10 +36,9 @@ class ActionSpace(ModelFree):
         super().__init__(config, policy, backend, workload)
         self.local = backend  # the backend, typed as the local one whose env the episodes run on
 
-    def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
+    def step(self, setup: Setup[PolicyGradient], counters: Counters, iteration: int) -> dict:
         method = setup.search
-        assert isinstance(method, PolicyGradient)
-        seed = derive_seed(self.config.seed, iteration, TRAINING)
+        seed = derive_seed(self.config.seed, iteration, Stream.TRAINING)
         episodes = collect(method.explorer(), method.center, self.local.env, seed, self.config.max_steps)
         shift = self.settings.reward_shift
         method.improve(dataclasses.replace(episodes, rewards=episodes.rewards - shift * episodes.alive))

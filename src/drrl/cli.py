@@ -16,7 +16,7 @@ from drrl.cli_settings import FLAGS, check_model_options, given_settings, settin
 from drrl.cli_settings import show_settings as show_settings_of
 from drrl.envs.batch import make_batch_env
 from drrl.envs.registry import aliases, lookup
-from drrl.loop import Counters, Setup, derive_seed, measure, one_thread, run, solved
+from drrl.loop import Counters, Setup, measure, one_thread, run, solved
 from drrl.model_based import ModelDiverged
 from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.runs import RunFolder
@@ -24,6 +24,7 @@ from drrl.settings import TrainConfig, describe_errors, load_config_file
 from drrl.settings.flat import flattened
 from drrl.settings.presets import suggested as suggested_settings
 from drrl.settings.presets import task_preset, task_settings
+from drrl.streams import Stream, derive_seed
 from drrl.train import (
     as_read,
     build_policy,
@@ -35,7 +36,6 @@ from drrl.train import (
     trained_center,
 )
 
-EVAL_STREAM = 2  # episode seeds of `drrl eval`, apart from training's and measuring's
 ERROR_LOG = "error.log"  # in the run folder: the traceback of whatever stopped the run
 
 
@@ -330,7 +330,7 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
     step = checkpoint["iteration"] if final else checkpoint["best_iteration"]
     which = f"{'final' if final else 'best measured'} centre ({checkpoint.get('unit', 'generation')} {step})"
     with one_thread():
-        result = measure(policy, center, seen, config.max_steps, derive_seed(seed, 0, EVAL_STREAM))
+        result = measure(policy, center, seen, config.max_steps, derive_seed(seed, 0, Stream.EVALUATING))
     env.close()
     returns = result.episode_returns.flatten().numpy()
     click.echo(

@@ -25,9 +25,8 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Generic, Protocol, TypeVar
 
-import numpy as np
 import torch
 from gymnasium.vector import VectorEnv
 from threadpoolctl import threadpool_limits
@@ -37,9 +36,8 @@ from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, evaluate
 from drrl.search.base import Search
 from drrl.settings import ModelFreeSettings, TrainConfig
+from drrl.streams import Stream, derive_seed
 
-# independent random streams for training, measuring, demonstrations and restarted searches
-TRAINING, MEASURING, DEMONSTRATING, RESTARTING = 0, 1, 2, 3
 COUNTS = (
     "iteration",
     "generations",
@@ -52,11 +50,6 @@ COUNTS = (
     "best_iteration",
     "best_center_criteria",
 )
-
-
-def derive_seed(seed: int, step: int, stream: int) -> int:
-    """A seed that depends only on the run seed, the step (generation or iteration) and the stream."""
-    return int(np.random.SeedSequence([seed, step, stream]).generate_state(1)[0])
 
 
 def run_generation(
@@ -97,7 +90,7 @@ class Counters:
 
 class Learner(Protocol):
     """What the loop needs of whatever improves the policy: a ``Search`` over parameters (PGPE, CMA-ES) or an
-    action-space ``PolicyGradient``; a world knows which it steps."""
+    action-space ``PolicyGradient``; a world is typed with the one it steps (``World[L]``)."""
 
     generation: int  # updates so far
 
@@ -110,8 +103,11 @@ class Learner(Protocol):
     def load_state_dict(self, state: dict) -> None: ...
 
 
-class World(ABC):
-    """Where the search's returns come from, and what one step of the loop does."""
+L = TypeVar("L", bound=Learner)  # what a world's steps improve: its ``Setup``'s search
+
+
+class World(ABC, Generic[L]):
+    """Where the search's returns come from, and what one step of the loop does to its learner ``L``."""
 
     kind: str  # "model-free", "model-based" or "action-space", as checkpoints name it
     unit: str  # what a step is called in metrics.csv and messages: "generation" or "iteration"
@@ -128,7 +124,7 @@ class World(ABC):
         """The real training episodes a whole run spends (the budget, less a remainder too small for a step)."""
 
     @abstractmethod
-    def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
+    def step(self, setup: Setup[L], counters: Counters, iteration: int) -> dict:
         """Step ``iteration``: improve ``setup.search``, count what it spent in ``counters``; its metrics row."""
 
     def measure_due(self, iteration: int, counters: Counters) -> bool:
@@ -152,25 +148,25 @@ class World(ABC):
         """The world's own state between steps (a model, its data), as copies."""
         return {}
 
-    def load_state_dict(self, state: dict) -> None:  # noqa: B027 (optional: a world without state keeps nothing)
+    def load_state_dict(self, state: dict) -> None:
         """Restore ``state_dict``."""
 
     def title(self, setup: Setup) -> str:
         return f"{setup.entry.env_id}, {setup.config.policy} policy, {setup.config.search.name}"
 
-    def close(self) -> None:  # noqa: B027 (optional: a world that holds nothing releases nothing)
+    def close(self) -> None:
         """Release what the world holds (its backend)."""
 
 
 @dataclass
-class Setup:
-    """The pieces of a run, built and checked before any work."""
+class Setup(Generic[L]):
+    """The pieces of a run, built and checked before any work: a search and the world that steps it."""
 
     config: TrainConfig
     entry: EnvEntry  # what drrl knows of the env: its id, verdict, closed-form reward
     policy: Policy
-    search: Learner
-    world: World
+    search: L
+    world: World[L]
     eval_env: VectorEnv  # measures the centre policy, always here
     spent: tuple[int, int] = (0, 0)  # real training episodes and steps spent before the first step (demonstrations)
 
@@ -273,7 +269,7 @@ def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
         center,
         setup.eval_env,
         setup.config.max_steps,
-        derive_seed(setup.config.seed, iteration, MEASURING),
+        derive_seed(setup.config.seed, iteration, Stream.MEASURING),
     )
     counters.eval_episodes += measured.episodes
     counters.eval_steps += measured.steps

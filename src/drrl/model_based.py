@@ -2,13 +2,13 @@
 
 One step of the loop (``drrl.loop.run``) is one iteration:
     1. collect real episodes with the current centre policy μ and exploring candidates μ ± ε from the search;
-    2. fit the world model(s) to all real episodes so far (``drrl.models.fit``; with ``mirror_episodes``, to their
-       mirror images too, where the task declares its reflection symmetry; later fits start from the previous
+    2. fit the world model(s) to all real episodes so far (``drrl.models.trainer``; with ``mirror_episodes``, to
+       their mirror images too, where the task declares its reflection symmetry; later fits start from the previous
        weights, a recurrent model's fits all hold out the same episodes, and a later fit whose held-out loss
        jumps to ``LOSS_JUMP`` times the last one is done again from new weights, the better of the two kept);
     3. run the search inside the model (an ``ImaginedEnv``, made by every backend worker from an ``ImaginedWorld``),
        from real start states (and their mirror images, with ``mirror_episodes``), for at most
-       ``model_based.generations`` generations of ``drrl.loop.run_generation``, the model-free generation,
+       ``model_based.generations_per_iteration`` generations of ``drrl.loop.run_generation``, the model-free generation,
        stopping early once the candidates' mean imagined return stops improving (a generation whose candidates all
        earn the same imagined return widens σ instead, ``drrl.search.pgpe``);
 then the loop measures μ on fresh real episodes (``eval_episodes``), counted as evaluation, never as training.
@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import gymnasium
 import numpy as np
@@ -40,33 +41,26 @@ from gymnasium.vector import VectorEnv
 
 from drrl.envs.batch import RegisteredEnv, is_frames
 from drrl.envs.registry import EnvEntry
-from drrl.loop import TRAINING, Counters, Setup, World, derive_seed, run_generation
+from drrl.loop import Counters, Setup, World, run_generation
 from drrl.models.base import LearnedModel, load_weights, weights
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, action_size
-from drrl.models.fit import FitReport, FitSettings
 from drrl.models.frames import Encoding, FrameAutoencoder, fit_autoencoder
-from drrl.models.imagined import ImaginedWorld
-from drrl.models.kinds import fit_model, make_model, remake
+from drrl.models.imagined import ImaginedWorld, TaskKnowledge
+from drrl.models.kinds import make_model
 from drrl.models.outcome import LearnedOutcome, fit_outcome
 from drrl.models.recurrent import WorldModel
 from drrl.models.remembering import Remembering
+from drrl.models.trainer import Fitted, ModelDiverged, ModelTrainer
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload, evaluate
 from drrl.search.base import Search
 from drrl.settings import ModelBasedSettings, TrainConfig
-
-# random streams of imagined episodes, model fitting and choosing explorers, apart from training and measuring
-IMAGINING, FITTING, EXPLORING, SEEING = 2, 3, 4, 5
-LOSS_JUMP = 4.0  # a fit whose held-out loss exceeds the last iteration's this many times is done again afresh
+from drrl.streams import Stream, derive_seed, imagined_seed
 
 
-class ModelDiverged(RuntimeError):
-    """The world model's loss, or the returns imagined in it, turned non-finite; the run stopped, its checkpoint
-    holding the last whole iteration."""
-
-
-class ModelBased(World):
-    """Real episodes feed a world model; the search's generations run inside it, through ``backend``.
+class ModelBased(World[Search]):
+    """Real episodes feed a world model; the search's generations run inside it, through ``backend``. A step is a
+    sequence of its parts: the ``Collector``'s real episodes, the ``ModelTrainer``'s fit, the ``InModelSearch``.
 
     Each iteration runs on one torch thread: the model's matrices are small (batches of a few hundred rows, widths
     of tens), so a second thread costs more in hand-offs than it gains, and leaves the other core to the machine.
@@ -102,7 +96,6 @@ class ModelBased(World):
                 f"episodes by (drrl's cart-poles and Pendulum-v1 do); leave mirror_episodes off"
             )
         self.config, self.settings, self.policy, self.backend = config, settings, policy, backend
-        self.real = RegisteredEnv(entry.env_id, config.engine)
         self.action_space = eval_env.single_action_space
         seen = eval_env.single_observation_space
         frames = is_frames(seen)
@@ -116,14 +109,14 @@ class ModelBased(World):
         self.real_horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
         self.horizon = min(self.real_horizon, settings.imagined_horizon or self.real_horizon)  # the search's
         known = settings.reward in ("auto", "known")
-        self.known_reward = entry.reward if known else None
-        self.complete_observation = entry.complete_observation if known else None
-        self.action_cost = entry.action_cost if known else None
-        self.end_reward = None if self.known_reward else entry.end_reward
+        self.task = task_knowledge(entry, known)
         self.outcome: LearnedOutcome | None = None  # the reward and end learned where none is known
         self.buffer = EpisodeBuffer()
-        self.split_seed = derive_seed(config.seed, 0, FITTING)  # one for every fit: episodes held out stay so
         self.sizes = iteration_sizes(config.budget, settings)
+        self.collector = Collector(config, settings, policy, RegisteredEnv(entry.env_id, config.engine), self.sizes)
+        first, later = (settings.fit_settings(first, learn_reward=False) for first in (True, False))
+        self.trainer = ModelTrainer(self.model, first, later, config.seed, self.mirror)
+        self.imagination = InModelSearch(config, settings, policy, backend, self.imagined_world, self.real_horizon)
 
     @property
     def iterations(self) -> int:
@@ -133,89 +126,33 @@ class ModelBased(World):
     def real_budget(self) -> int:
         return sum(self.sizes)
 
-    def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
+    def step(self, setup: Setup[Search], counters: Counters, iteration: int) -> dict:
         """Collect, fit, search in the model (module docstring); the iteration's metrics row."""
-        config, search = self.config, setup.search
-        assert isinstance(search, Search)
-        # 1. real episodes: the centre and explorers (only explorers before a model has informed μ)
-        count = self.sizes[iteration - 1]
-        params = exploring_policies(search, count, with_center=iteration > 1 or self.config.start_from is not None)
-        if self.settings.exploration_bonus and iteration > 1 and count > 1:  # explorers beside μ to choose
-            params = torch.cat([params[:1], self.optimistic_explorers(search, count - 1, counters, iteration)])
-        episodes, real = collect(
-            self.policy,
-            params,
-            self.real,
-            derive_seed(config.seed, iteration, TRAINING),
-            config.max_steps,
-            self.measured_on,
-        )
-        counters.real_episodes += real.episodes
-        counters.real_steps += real.steps
-        # 2. the model (on frames, first what it reads of them)
+        search = setup.search
+        episodes, real = self.collector.collect(search, counters, iteration, self.measured_on, self.imagination)
         fit_start = time.perf_counter()
-        seeing = {}
+        seeing = self.remember(episodes, iteration)
+        fitted = self.trainer.fit(self.buffer, iteration)
+        self.learn_outcome(iteration)
+        search_start = time.perf_counter()
+        searched = self.imagination.improve(search, counters, iteration)
+        times = {"fit_time": round(search_start - fit_start, 3), "search_time": round(searched.end - search_start, 3)}
+        return metrics_row(iteration, counters, real, fitted, searched, search) | seeing | times
+
+    def remember(self, episodes: list[Episode], iteration: int) -> dict:
+        """Add the real ``episodes`` to the buffer the model learns from (on frames, through the autoencoder fitted
+        anew, ``see``); the autoencoder's figures for the row, if any."""
         if self.autoencoder is None:
             self.buffer.extend(episodes)
-        else:
-            self.frames.extend(episodes)
-            seeing = self.see(iteration)
-        fit_now = fitting_settings(self.settings.fit_settings(iteration == 1, False), self.buffer)
-        seed = derive_seed(config.seed, iteration, FITTING)
-        reports = fit_model(self.model, self.buffer, fit_now, seed, self.split_seed, self.mirror)
-        if any(report.stop == "diverged" for report in reports):
-            raise ModelDiverged(f"iteration {iteration}: the world model's loss turned non-finite")
-        previous = counters.rows[-1] if counters.rows else {}
-        refitted = bool(  # held-out losses both, not training losses standing in for them
-            reports[0].held_out_episodes
-            and previous.get("held_out_episodes")
-            and held_out_loss(reports) > LOSS_JUMP * previous["model_loss"]
-        )
-        if refitted:
-            reports = self.refit_afresh(reports, iteration)
-        if self.known_reward is None:
-            self.outcome = fit_outcome(self.buffer, self.end_reward, seed=seed)
-        # 3. the search inside it, from real start states
-        search_start = time.perf_counter()
-        imagined = self.imagined_world(self.settings.disagreement_penalty)
-        self.backend.use(
-            Workload(
-                self.policy, imagined, config.search.popsize, config.search.episodes_per_candidate, config.max_steps
-            )
-        )
-        before = search.state_dict() if self.settings.keep_unless_improved else None
-        old_center = search.center
-        generations, tied = self.search_in_model(search, counters, iteration)
-        search_end = time.perf_counter()
-        # the centre in the model, as long as a real episode (the loop measures it in reality); where it may be kept,
-        # the old one beside it on the same starts
-        centers = [search.center] if before is None else [search.center, old_center]
-        in_model = self.imagine_centers(torch.stack(centers), iteration)
-        kept = False
-        if before is not None and in_model[0] <= in_model[1]:
-            search.load_state_dict(before)
-            kept = True
-        return {
-            "iteration": iteration,
-            "real_episodes": counters.real_episodes,
-            "real_steps": counters.real_steps,
-            "imagined_episodes": counters.imagined_episodes,
-            "imagined_steps": counters.imagined_steps,
-            "generations": generations,
-            "tied_generations": tied,
-            "mean_return": float(real.returns.mean()),
-            "imagined_center_return": float(in_model[1 if kept else 0]),
-            "kept_center": int(kept),
-            "sigma_norm": float(search.spread.norm()),
-            "overshoot": fit_now.overshoot,
-            "model_loss": held_out_loss(reports),
-            "held_out_episodes": reports[0].held_out_episodes,
-            "refitted": int(refitted),
-            "fit_updates": sum(report.updates for report in reports),
-            **seeing,
-            "fit_time": round(search_start - fit_start, 3),
-            "search_time": round(search_end - search_start, 3),
-        }
+            return {}
+        self.frames.extend(episodes)
+        return self.see(iteration)
+
+    def learn_outcome(self, iteration: int) -> None:
+        """Where no reward is known, learn the reward and end from the real episodes (``drrl.models.outcome``)."""
+        if self.task.reward is None:
+            seed = derive_seed(self.config.seed, iteration, Stream.FITTING)
+            self.outcome = fit_outcome(self.buffer, self.task.end_reward, seed=seed)
 
     def see(self, iteration: int) -> dict:
         """Fit the frame autoencoder to every real frame so far (from its previous weights after the first fit) and
@@ -227,7 +164,7 @@ class ModelBased(World):
             self.autoencoder,
             np.concatenate([episode.observations for episode in episodes]),
             self.settings.frame_updates if iteration == 1 else self.settings.frame_refit_updates,
-            seed=derive_seed(self.config.seed, iteration, SEEING),
+            seed=derive_seed(self.config.seed, iteration, Stream.SEEING),
         )
         latent = np.split(fit.features, np.cumsum([len(episode.observations) for episode in episodes])[:-1])
         self.buffer = EpisodeBuffer(
@@ -241,67 +178,145 @@ class ModelBased(World):
         for it."""
         return reading(env, self.autoencoder, self.model if self.settings.policy_memory else None)
 
-    def imagine_centers(self, centers: torch.Tensor, iteration: int) -> torch.Tensor:
-        """The imagined returns (C,) of ``centers`` (C, n) over a real episode's horizon, each on the same
-        imagined starts (common random numbers): what the model promises each in reality."""
-        episodes = self.config.episodes_per_generation
-        env = self.imagined_world(self.settings.disagreement_penalty, self.real_horizon).make(len(centers) * episodes)
-        seed = derive_seed(self.config.seed, iteration, IMAGINING)
-        return evaluate(self.policy, centers, env, episodes, seed=seed).returns
-
-    def optimistic_explorers(self, search: Search, count: int, counters: Counters, iteration: int) -> torch.Tensor:
-        """Of the search's candidates μ ± ε, the ``count`` whose imagined episode earns the most reward plus
-        ``exploration_bonus`` × the members' disagreement along the way (every candidate from the same real start):
-        real episodes go where the model expects much or knows little, which is where they teach it most.
-
-        Beyond the thesis, which explores with random μ ± ε; the bonus is the ensemble's own uncertainty, the
-        optimism in the face of uncertainty of model-based exploration (e.g. PETS-style ensembles).
-        """
-        candidates = search.ask()
-        env = self.imagined_world(-self.settings.exploration_bonus).make(len(candidates))  # disagreement earns
-        seed = derive_seed(self.config.seed, iteration, EXPLORING)
-        evaluation = evaluate(self.policy, candidates, env, 1, seed=seed, max_steps=self.config.max_steps)
-        counters.imagined_episodes += evaluation.episodes
-        counters.imagined_steps += evaluation.steps
-        return candidates[torch.argsort(evaluation.returns, descending=True, stable=True)[:count]]
-
     def imagined_world(self, disagreement_penalty: float, horizon: int | None = None) -> ImaginedWorld:
         """The current model as imagined episodes from the real start states so far (and their mirror images, with
-        ``mirror_episodes``), ``horizon`` steps long (the search's horizon unless given)."""
+        ``mirror_episodes``), ``horizon`` steps long (the search's horizon unless given), rewarded as the task is
+        known or learned."""
         starts = self.buffer.start_observations()
         if self.mirror is not None:  # the task's starts are symmetric too
             no_actions = np.zeros((0, action_size(self.action_space)), np.float32)
             starts = np.concatenate([starts, self.mirror(starts, no_actions)[0]])
+        task = self.task if self.outcome is None else dataclasses.replace(self.task, reward=self.outcome)
         return ImaginedWorld.of(
             self.model,
             starts,
             self.action_space,
             horizon or self.horizon,
-            self.known_reward or self.outcome,
+            task,
             disagreement_penalty,
-            self.complete_observation,
             self.settings.policy_memory,
-            self.action_cost,
         )
 
-    def refit_afresh(self, reports: list[FitReport], iteration: int) -> list[FitReport]:
-        """Fit a model from new initial weights, as the first fit does, on the same split; keep it if its held-out
-        loss is lower than the warm-started fit's (``reports``). Returns the kept model's reports.
+    def state_dict(self) -> dict:
+        state = {
+            "model": weights(self.model),
+            "buffer": self.buffer.state_dict() if len(self.buffer) else {},
+            "trainer": self.trainer.state_dict(),
+        }
+        if self.autoencoder is not None:
+            state["autoencoder"] = weights(self.autoencoder)
+            state["frames"] = self.frames.state_dict() if len(self.frames) else {}
+        return state
 
-        Beyond the thesis: a warm-started fit can be left far worse on held-out episodes than the model before it
-        (new data the old weights cannot bend to), and a policy searched in that model fails in reality.
-        """
-        seed = derive_seed(self.config.seed, iteration, FITTING)
-        fresh = remake(self.model, seed)
-        settings = fitting_settings(self.settings.fit_settings(True, False), self.buffer)
-        fresh_reports = fit_model(fresh, self.buffer, settings, seed, self.split_seed, self.mirror)
-        worse = held_out_loss(fresh_reports) >= held_out_loss(reports)
-        if worse or any(report.stop == "diverged" for report in fresh_reports):
-            return reports
-        self.model.load_state_dict(fresh.state_dict())
-        return fresh_reports
+    def load_state_dict(self, state: dict) -> None:
+        load_weights(self.model, state["model"])
+        self.buffer = EpisodeBuffer.from_state_dict(state["buffer"]) if state["buffer"] else EpisodeBuffer()
+        self.trainer.load_state_dict(state["trainer"])
+        if self.autoencoder is not None:
+            load_weights(self.autoencoder, state["autoencoder"])
+            self.frames = EpisodeBuffer.from_state_dict(state["frames"]) if state["frames"] else EpisodeBuffer()
 
-    def search_in_model(self, search: Search, counters: Counters, iteration: int) -> tuple[int, int]:
+    def title(self, setup: Setup) -> str:
+        settings = self.settings
+        return (
+            f"{setup.entry.env_id}, {self.config.policy} policy, model-based {self.config.search.name} "
+            f"({settings.model_kind} {'×'.join(map(str, settings.hidden))}, K = {settings.ensemble_size})"
+        )
+
+    def close(self) -> None:
+        self.backend.close()
+
+
+class Collector:
+    """Step 1, the iteration's real episodes: the centre μ and explorers μ ± ε from the search (only explorers before
+    a model has informed μ), or with an exploration bonus the explorers the model is most optimistic about."""
+
+    def __init__(
+        self, config: TrainConfig, settings: ModelBasedSettings, policy: Policy, real: RegisteredEnv, sizes: list[int]
+    ):
+        self.config, self.settings, self.policy, self.real, self.sizes = config, settings, policy, real, sizes
+
+    def collect(
+        self,
+        search: Search,
+        counters: Counters,
+        iteration: int,
+        read: Callable[[VectorEnv], VectorEnv],
+        imagination: InModelSearch,
+    ) -> tuple[list[Episode], Evaluation]:
+        """Iteration ``iteration``'s recorded real episodes, the policies reading the env through ``read``, and what
+        they spent (counted in ``counters``)."""
+        count = self.sizes[iteration - 1]
+        params = exploring_policies(search, count, with_center=iteration > 1 or self.config.start_from is not None)
+        if self.settings.exploration_bonus and iteration > 1 and count > 1:  # explorers beside μ to choose
+            params = torch.cat([params[:1], imagination.optimistic_explorers(search, count - 1, counters, iteration)])
+        config = self.config
+        episodes, real = collect(
+            self.policy,
+            params,
+            self.real,
+            derive_seed(config.seed, iteration, Stream.TRAINING),
+            config.max_steps,
+            read,
+        )
+        counters.real_episodes += real.episodes
+        counters.real_steps += real.steps
+        return episodes, real
+
+
+@dataclass(frozen=True)
+class Searched:
+    """What an iteration's search in the model did, for the row."""
+
+    generations: int
+    tied: int  # generations whose candidates all earned the same imagined return
+    promised: float  # the kept centre's imagined return over a real episode's horizon
+    kept: bool  # the old centre kept (keep_unless_improved)
+    end: float  # ``time.perf_counter()`` when the generations ended
+
+
+class InModelSearch:
+    """Step 3, the search inside the model, from real start states: generations on imagined episodes made by
+    ``imagined(disagreement_penalty, horizon)`` (``ModelBased.imagined_world``) through ``backend``, then the new
+    centre's imagined return, and with ``keep_unless_improved`` the search undone unless the model promises the new
+    centre more than the old one."""
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        settings: ModelBasedSettings,
+        policy: Policy,
+        backend: Backend,
+        imagined: Callable[..., ImaginedWorld],
+        real_horizon: int,
+    ):
+        self.config, self.settings, self.policy, self.backend = config, settings, policy, backend
+        self.imagined, self.real_horizon = imagined, real_horizon
+
+    def improve(self, search: Search, counters: Counters, iteration: int) -> Searched:
+        """Iteration ``iteration``'s generations in the model, counted in ``counters``."""
+        config = self.config
+        imagined = self.imagined(self.settings.disagreement_penalty)
+        self.backend.use(
+            Workload(
+                self.policy, imagined, config.search.popsize, config.search.episodes_per_candidate, config.max_steps
+            )
+        )
+        before = search.state_dict() if self.settings.keep_unless_improved else None
+        old_center = search.center
+        generations, tied = self.generations(search, counters, iteration)
+        end = time.perf_counter()
+        # the centre in the model, as long as a real episode (the loop measures it in reality); where it may be kept,
+        # the old one beside it on the same starts
+        centers = [search.center] if before is None else [search.center, old_center]
+        in_model = self.imagine_centers(torch.stack(centers), iteration)
+        kept = False
+        if before is not None and in_model[0] <= in_model[1]:
+            search.load_state_dict(before)
+            kept = True
+        return Searched(generations, tied, float(in_model[1 if kept else 0]), kept, end)
+
+    def generations(self, search: Search, counters: Counters, iteration: int) -> tuple[int, int]:
         """Generations on imagined episodes, counted in ``counters``; returns how many ran, and in how many every
         candidate's imagined return was the same (no gradient: PGPE widens σ, ``drrl.search.pgpe``).
 
@@ -311,7 +326,7 @@ class ModelBased(World):
         """
         best, since_best, generation, tied = float("-inf"), 0, 0, 0
         for generation in range(1, self.settings.generations_per_iteration + 1):
-            seed = derive_seed(self.config.seed, iteration * 1_000_000 + generation, IMAGINING)
+            seed = imagined_seed(self.config.seed, iteration, generation)
             try:
                 evaluation, metrics = run_generation(
                     search, self.backend, seed, reward_shift=self.settings.reward_shift
@@ -331,34 +346,66 @@ class ModelBased(World):
                 break
         return generation, tied
 
-    def state_dict(self) -> dict:
-        state = {"model": weights(self.model), "buffer": self.buffer.state_dict() if len(self.buffer) else {}}
-        if self.autoencoder is not None:
-            state["autoencoder"] = weights(self.autoencoder)
-            state["frames"] = self.frames.state_dict() if len(self.frames) else {}
-        return state
+    def imagine_centers(self, centers: torch.Tensor, iteration: int) -> torch.Tensor:
+        """The imagined returns (C,) of ``centers`` (C, n) over a real episode's horizon, each on the same
+        imagined starts (common random numbers): what the model promises each in reality."""
+        episodes = self.config.episodes_per_generation
+        env = self.imagined(self.settings.disagreement_penalty, self.real_horizon).make(len(centers) * episodes)
+        seed = derive_seed(self.config.seed, iteration, Stream.IMAGINING)
+        return evaluate(self.policy, centers, env, episodes, seed=seed).returns
 
-    def load_state_dict(self, state: dict) -> None:
-        load_weights(self.model, state["model"])
-        self.buffer = EpisodeBuffer.from_state_dict(state["buffer"]) if state["buffer"] else EpisodeBuffer()
-        if self.autoencoder is not None:
-            load_weights(self.autoencoder, state["autoencoder"])
-            self.frames = EpisodeBuffer.from_state_dict(state["frames"]) if state["frames"] else EpisodeBuffer()
+    def optimistic_explorers(self, search: Search, count: int, counters: Counters, iteration: int) -> torch.Tensor:
+        """Of the search's candidates μ ± ε, the ``count`` whose imagined episode earns the most reward plus
+        ``exploration_bonus`` × the members' disagreement along the way (every candidate from the same real start):
+        real episodes go where the model expects much or knows little, which is where they teach it most.
 
-    def title(self, setup: Setup) -> str:
-        settings = self.settings
-        return (
-            f"{setup.entry.env_id}, {self.config.policy} policy, model-based {self.config.search.name} "
-            f"({settings.model_kind} {'×'.join(map(str, settings.hidden))}, K = {settings.ensemble_size})"
-        )
+        Beyond the thesis, which explores with random μ ± ε; the bonus is the ensemble's own uncertainty, the
+        optimism in the face of uncertainty of model-based exploration (e.g. PETS-style ensembles).
+        """
+        candidates = search.ask()
+        env = self.imagined(-self.settings.exploration_bonus).make(len(candidates))  # disagreement earns
+        seed = derive_seed(self.config.seed, iteration, Stream.EXPLORING)
+        evaluation = evaluate(self.policy, candidates, env, 1, seed=seed, max_steps=self.config.max_steps)
+        counters.imagined_episodes += evaluation.episodes
+        counters.imagined_steps += evaluation.steps
+        return candidates[torch.argsort(evaluation.returns, descending=True, stable=True)[:count]]
 
-    def close(self) -> None:
-        self.backend.close()
+
+def task_knowledge(entry: EnvEntry, known: bool) -> TaskKnowledge:
+    """What imagined episodes know of ``entry``'s task: its reward in closed form, the action cost and the observation
+    completion where that reward is ``known`` to be used; else the reward of a terminating step, for the learned
+    reward (``drrl.models.outcome``)."""
+    reward = entry.reward if known else None
+    return TaskKnowledge(
+        reward=reward,
+        action_cost=entry.action_cost if known else None,
+        complete_observation=entry.complete_observation if known else None,
+        end_reward=None if reward else entry.end_reward,
+    )
 
 
-def held_out_loss(reports: list[FitReport]) -> float:
-    """The members' mean loss on their held-out episodes."""
-    return float(np.mean([report.valid_loss for report in reports]))
+def metrics_row(
+    iteration: int, counters: Counters, real: Evaluation, fitted: Fitted, searched: Searched, search: Search
+) -> dict:
+    """Iteration ``iteration``'s metrics row (without the frame autoencoder's figures and the times)."""
+    return {
+        "iteration": iteration,
+        "real_episodes": counters.real_episodes,
+        "real_steps": counters.real_steps,
+        "imagined_episodes": counters.imagined_episodes,
+        "imagined_steps": counters.imagined_steps,
+        "generations": searched.generations,
+        "tied_generations": searched.tied,
+        "mean_return": float(real.returns.mean()),
+        "imagined_center_return": searched.promised,
+        "kept_center": int(searched.kept),
+        "sigma_norm": float(search.spread.norm()),
+        "overshoot": fitted.overshoot,
+        "model_loss": fitted.loss,
+        "held_out_episodes": fitted.held_out_episodes,
+        "refitted": int(fitted.refitted),
+        "fit_updates": sum(report.updates for report in fitted.reports),
+    }
 
 
 def iteration_sizes(budget: int, settings: ModelBasedSettings) -> list[int]:
@@ -447,14 +494,3 @@ def collect(
         return recorder.episodes(), evaluation
     finally:
         env.close()
-
-
-def fitting_settings(settings: FitSettings, buffer: EpisodeBuffer) -> FitSettings:
-    """``settings`` with the window shortened while every real episode so far is shorter than one (the first
-    episodes of a falling pole can be; a hand of Blackjack lasts one to three steps): first the overshooting
-    horizon, then the unfolded steps; the iteration's row reports the horizon used."""
-    longest = max(len(episode) for episode in buffer.episodes)
-    if longest >= settings.unfold + settings.overshoot:
-        return settings
-    unfold = min(settings.unfold, longest)
-    return dataclasses.replace(settings, unfold=unfold, overshoot=longest - unfold)

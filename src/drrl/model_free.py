@@ -35,37 +35,26 @@ from collections.abc import Callable
 import torch
 
 from drrl.envs.batch import RegisteredEnv
-from drrl.loop import TRAINING, Counters, Learner, Setup, World, attempt_ended, derive_seed, run_generation
+from drrl.loop import Counters, L, Setup, World, attempt_ended, run_generation
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload
 from drrl.rollout.moments import Moments
 from drrl.search.base import Search
 from drrl.settings import ModelBasedSettings, ModelFreeSettings, TrainConfig
+from drrl.streams import Stream, derive_seed
 
 
-class ModelFree(World):
-    """Every generation on the real environment, through ``backend`` (here, or on a Ray cluster); with
-    ``restart_every``, ``new_search(attempt)`` is each later attempt's search."""
+class RealWorld(World[L]):
+    """What the model-free worlds share, whatever their step improves (a ``Search``, or an action-space
+    ``PolicyGradient``): every step on the real environment through ``backend``, measuring within ``eval_share``,
+    checkpoints every ``checkpoint_every`` steps, and in the state the observation moments and a schedule's stage."""
 
-    kind, unit = "model-free", "generation"
-
-    def __init__(
-        self,
-        config: TrainConfig,
-        policy: Policy,
-        backend: Backend,
-        workload: Workload,
-        new_search: Callable[[int], Search] | None = None,
-    ):
+    def __init__(self, config: TrainConfig, policy: Policy, backend: Backend, workload: Workload):
         world = config.world
         assert not isinstance(world, ModelBasedSettings)
         own = world if isinstance(world, ModelFreeSettings) else None  # an action-space run has none of its own
-        self.restart_every = None if own is None else own.restart_every
         self.schedule = None if own is None else own.env_schedule
-        if self.restart_every is not None and new_search is None:
-            raise ValueError("restart_every needs new_search, to build each attempt's search")
         self.config, self.settings, self.policy, self.backend, self.workload = config, world, policy, backend, workload
-        self.new_search = new_search
         norm = own is not None and own.observation_norm
         self.moments = Moments.empty(1, policy.observation_size) if norm else None
         self.stage = 0  # steps an adaptive env_schedule has taken
@@ -77,60 +66,6 @@ class ModelFree(World):
     @property
     def real_budget(self) -> int:
         return self.config.demonstrations + self.config.total_generations * self.config.episodes_per_generation
-
-    def step(self, setup: Setup, counters: Counters, iteration: int) -> dict:
-        scheduled = self.follow_schedule(counters)
-        attempt = self.attempt(iteration)
-        if attempt and attempt_ended(self.config, iteration - 1):
-            setup.search = self.restarted(setup.search, attempt)
-        search = setup.search
-        assert isinstance(search, Search)
-        try:
-            result, metrics = run_generation(
-                search,
-                self.backend,
-                derive_seed(self.config.seed, iteration, TRAINING),
-                self.deployed,
-                self.settings.reward_shift,
-            )
-        except NonFiniteOutput as error:
-            raise NonFiniteOutput(f"generation {iteration}: {error}; stopped before updating the search") from None
-        if self.moments is not None and result.moments is not None:
-            self.moments = self.moments.plus(result.moments)
-        schedule = self.schedule
-        if schedule is not None and schedule.advance_at is not None:
-            self.stage += int(self.stage < schedule.steps and float(result.returns.median()) >= schedule.advance_at)
-        row = counted(counters, iteration, result) | {"sigma_norm": metrics["sigma_norm"], **scheduled}
-        return row | ({} if self.restart_every is None else {"attempt": attempt + 1})
-
-    def attempt(self, iteration: int) -> int:
-        """The attempt (0, 1, …) generation ``iteration`` belongs to; 0 without restarts."""
-        every = self.restart_every
-        return 0 if every is None else (iteration - 1) // every
-
-    def restarted(self, search: Learner, attempt: int) -> Search:
-        """Attempt ``attempt``'s new search, counting its generations on from ``search``'s; observation statistics
-        start again."""
-        assert self.new_search is not None
-        fresh = self.new_search(attempt)
-        fresh.generation = search.generation
-        if self.moments is not None:
-            self.moments = Moments.empty(1, self.policy.observation_size)
-        return fresh
-
-    def follow_schedule(self, counters: Counters) -> dict[str, float]:
-        """Point the backend at the env of this generation's scheduled option, if any; the option's value."""
-        schedule = self.schedule
-        if schedule is None:
-            return {}
-        value = schedule.value(counters.real_episodes / self.real_budget, self.stage)
-        env = self.workload.env
-        assert isinstance(env, RegisteredEnv)  # prepare gives a model-free run its registered env
-        scheduled = RegisteredEnv(env.env_id, env.engine, ((schedule.option, value),))
-        if self.workload.env != scheduled:
-            self.workload = dataclasses.replace(self.workload, env=scheduled)
-            self.backend.use(self.workload)
-        return {schedule.option: value}
 
     def measure_due(self, iteration: int, counters: Counters) -> bool:
         """After the last generation and an attempt's last; else every ``eval_every`` generations if measuring now
@@ -169,6 +104,81 @@ class ModelFree(World):
 
     def close(self) -> None:
         self.backend.close()
+
+
+class ModelFree(RealWorld[Search]):
+    """Every generation on the real environment, through ``backend`` (here, or on a Ray cluster); with
+    ``restart_every``, ``new_search(attempt)`` is each later attempt's search."""
+
+    kind, unit = "model-free", "generation"
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        policy: Policy,
+        backend: Backend,
+        workload: Workload,
+        new_search: Callable[[int], Search] | None = None,
+    ):
+        super().__init__(config, policy, backend, workload)
+        assert isinstance(self.settings, ModelFreeSettings)
+        self.restart_every = self.settings.restart_every
+        if self.restart_every is not None and new_search is None:
+            raise ValueError("restart_every needs new_search, to build each attempt's search")
+        self.new_search = new_search
+
+    def step(self, setup: Setup[Search], counters: Counters, iteration: int) -> dict:
+        scheduled = self.follow_schedule(counters)
+        attempt = self.attempt(iteration)
+        if attempt and attempt_ended(self.config, iteration - 1):
+            setup.search = self.restarted(setup.search, attempt)
+        search = setup.search
+        try:
+            result, metrics = run_generation(
+                search,
+                self.backend,
+                derive_seed(self.config.seed, iteration, Stream.TRAINING),
+                self.deployed,
+                self.settings.reward_shift,
+            )
+        except NonFiniteOutput as error:
+            raise NonFiniteOutput(f"generation {iteration}: {error}; stopped before updating the search") from None
+        if self.moments is not None and result.moments is not None:
+            self.moments = self.moments.plus(result.moments)
+        schedule = self.schedule
+        if schedule is not None and schedule.advance_at is not None:
+            self.stage += int(self.stage < schedule.steps and float(result.returns.median()) >= schedule.advance_at)
+        row = counted(counters, iteration, result) | {"sigma_norm": metrics["sigma_norm"], **scheduled}
+        return row | ({} if self.restart_every is None else {"attempt": attempt + 1})
+
+    def attempt(self, iteration: int) -> int:
+        """The attempt (0, 1, …) generation ``iteration`` belongs to; 0 without restarts."""
+        every = self.restart_every
+        return 0 if every is None else (iteration - 1) // every
+
+    def restarted(self, search: Search, attempt: int) -> Search:
+        """Attempt ``attempt``'s new search, counting its generations on from ``search``'s; observation statistics
+        start again."""
+        assert self.new_search is not None
+        fresh = self.new_search(attempt)
+        fresh.generation = search.generation
+        if self.moments is not None:
+            self.moments = Moments.empty(1, self.policy.observation_size)
+        return fresh
+
+    def follow_schedule(self, counters: Counters) -> dict[str, float]:
+        """Point the backend at the env of this generation's scheduled option, if any; the option's value."""
+        schedule = self.schedule
+        if schedule is None:
+            return {}
+        value = schedule.value(counters.real_episodes / self.real_budget, self.stage)
+        env = self.workload.env
+        assert isinstance(env, RegisteredEnv)  # prepare gives a model-free run its registered env
+        scheduled = RegisteredEnv(env.env_id, env.engine, ((schedule.option, value),))
+        if self.workload.env != scheduled:
+            self.workload = dataclasses.replace(self.workload, env=scheduled)
+            self.backend.use(self.workload)
+        return {schedule.option: value}
 
 
 def counted(counters: Counters, iteration: int, result: Evaluation) -> dict:

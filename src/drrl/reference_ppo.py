@@ -18,9 +18,9 @@ from gymnasium import spaces
 
 from drrl.envs.batch import ActionMap, make_batch_env, observation_size
 from drrl.envs.registry import lookup
-from drrl.loop import MEASURING, derive_seed
 from drrl.policies.base import Policy
 from drrl.rollout import evaluate
+from drrl.streams import Stream, derive_seed
 
 INSTALL = 'PPO needs Stable-Baselines3: pip install "drrl[sb3]"'
 
@@ -68,7 +68,7 @@ def run_ppo(env: str, seed: int, budget: int, eval_episodes: int = 50) -> list[d
 
     def measure(episodes: int) -> None:
         measured = evaluate(
-            policy, torch.zeros(1, 1), measuring, eval_episodes, seed=derive_seed(seed, len(rows) + 1, MEASURING)
+            policy, torch.zeros(1, 1), measuring, eval_episodes, seed=derive_seed(seed, len(rows) + 1, Stream.MEASURING)
         )
         verdict = entry.judge(measured.episode_returns, measured.terminated)
         rows.append(

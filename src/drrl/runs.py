@@ -174,7 +174,21 @@ class RunFolder:
                 f"{self.path / CONFIG} differs from the settings its checkpoint was trained with "
                 f"({shown}); restore it, or train a new run with the new settings"
             )
-        return config, checkpoint
+        return config, self._with_fit_state(checkpoint)
+
+    def _with_fit_state(self, checkpoint: dict[str, Any]) -> dict[str, Any]:
+        """``checkpoint``, where an older drrl wrote it for a model-based run without its model trainer's state, with
+        that state as it was: the last fit's held-out loss, which that drrl read back from its last metrics row."""
+        world = checkpoint.get("world")
+        if checkpoint.get("kind") != "model-based" or not isinstance(world, dict) or "trainer" in world:
+            return checkpoint
+        try:
+            rows = self.read_metrics()[: int(checkpoint["iteration"])]
+        except (OSError, KeyError, TypeError, ValueError, csv.Error):
+            return checkpoint  # refused as a checkpoint that does not fit, when restored
+        last = rows[-1] if rows else {}
+        loss = last.get("model_loss") if last.get("held_out_episodes") else None
+        return checkpoint | {"world": world | {"trainer": {"last_loss": loss}}}
 
     def plot_learning_curve(
         self, title: str, best_step: int | None = None, eval_episodes: int | None = None, training: str | None = None

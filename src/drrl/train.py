@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 from gymnasium import spaces
@@ -23,15 +24,12 @@ from drrl.cloning import check_clonable, cloned
 from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, is_frames, make_batch_env, observation_size
 from drrl.envs.registry import EnvEntry, is_own, lookup
 from drrl.loop import (
-    DEMONSTRATING,
-    RESTARTING,
     Counters,
     Learner,
     Setup,
     Subscriber,
     World,
     check_checkpoint,
-    derive_seed,
     restore,
     run,
 )
@@ -54,6 +52,7 @@ from drrl.settings import (
     PolicyGradientSettings,
     TrainConfig,
 )
+from drrl.streams import Stream, derive_seed
 from drrl.subscribers import ModelGuard, ProgressBar, RunFolderWriter, TensorBoardLogger
 
 
@@ -82,9 +81,7 @@ def policy_inputs(config: TrainConfig, space: spaces.Space) -> int:
 def build_search(config: TrainConfig, policy: Policy, discrete: bool, center: torch.Tensor | None = None) -> Learner:
     """The search over the policy's parameters, or the action-space policy gradient, that ``config`` names, from
     ``center`` or the policy's own initial centre."""
-    if center is None:
-        center = policy.initial_center(torch.Generator().manual_seed(config.seed))
-    center = center.to(config.device)
+    center = initial_center(config, policy, center)
     search = config.search
     if isinstance(search, PolicyGradientSettings):
         return make_policy_gradient(
@@ -97,6 +94,20 @@ def build_search(config: TrainConfig, policy: Policy, discrete: bool, center: to
             optimizer=search.optimizer,
             seed=config.seed,
         )
+    return parameter_search(config, center)
+
+
+def initial_center(config: TrainConfig, policy: Policy, center: torch.Tensor | None = None) -> torch.Tensor:
+    """``center``, or the policy's own initial centre drawn from the run seed, on the run's device."""
+    if center is None:
+        center = policy.initial_center(torch.Generator().manual_seed(config.seed))
+    return center.to(config.device)
+
+
+def parameter_search(config: TrainConfig, center: torch.Tensor) -> Search:
+    """The search over the policy's parameters that ``config`` names (PGPE, CMA-ES), from ``center``."""
+    search = config.search
+    assert not isinstance(search, PolicyGradientSettings), "an action-space policy gradient is not a parameter search"
     apart = {"name", "popsize", "sigma_init", "episodes_per_candidate"}  # given to make_search, or not the search's
     pgpe = search.model_dump(exclude=apart) if isinstance(search, PGPESettings) else {}
     return make_search(
@@ -107,11 +118,8 @@ def build_search(config: TrainConfig, policy: Policy, discrete: bool, center: to
 def restarted_search(config: TrainConfig, policy: Policy, attempt: int) -> Search:
     """Attempt ``attempt``'s search of a run with ``restart_every``: the run's, from the policy's initial centre and
     the search's seed both drawn anew."""
-    search = build_search(
-        config.model_copy(update={"seed": derive_seed(config.seed, attempt, RESTARTING)}), policy, False
-    )
-    assert isinstance(search, Search)
-    return search
+    restarted = config.model_copy(update={"seed": derive_seed(config.seed, attempt, Stream.RESTARTING)})
+    return parameter_search(restarted, initial_center(restarted, policy))
 
 
 def memory_needed(config: TrainConfig, policy: Policy) -> int:
@@ -212,7 +220,7 @@ def prepare(
         raise
     try:
         if config.model_based:
-            world: World = ModelBased(config, entry, policy, eval_env, evaluator, start.model)
+            world: World[Any] = ModelBased(config, entry, policy, eval_env, evaluator, start.model)
         elif isinstance(evaluator, LocalBackend) and isinstance(config.world, ActionSpaceSettings):
             world = ActionSpace(config, policy, evaluator, workload)
         else:
@@ -297,7 +305,7 @@ def demonstrated_start(config: TrainConfig, entry: EnvEntry, policy: Policy, pro
         entry.env_id,
         demonstrations.episodes,
         demonstrations.rounds,
-        derive_seed(config.seed, 0, DEMONSTRATING),
+        derive_seed(config.seed, 0, Stream.DEMONSTRATING),
         demonstrations.noise,
         config.engine,
         config.max_steps,

@@ -9,7 +9,7 @@ Elman policies' cell (``drrl.policies.recurrent``); a task's closed-form reward 
 from drrl.models.base import LearnedModel, Prediction
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, Windows
 from drrl.models.fit import MODEL_OPTIMIZERS, FitReport, FitSettings
-from drrl.models.imagined import ImaginedEnv, ImaginedWorld, RewardFunction
+from drrl.models.imagined import ImaginedEnv, ImaginedWorld, RewardFunction, TaskKnowledge
 from drrl.models.kinds import MODEL_KINDS
 from drrl.models.linear import LinearModel
 from drrl.models.polynomial import PolynomialModel
@@ -31,6 +31,7 @@ __all__ = [
     "PolynomialModel",
     "Prediction",
     "RewardFunction",
+    "TaskKnowledge",
     "Windows",
     "WorldModel",
     "unfolding_loss",

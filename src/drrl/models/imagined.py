@@ -4,9 +4,9 @@ Every sub-environment starts from a real start observation drawn from the buffer
 drawn at reset (an episode restarted later keeps its env's member), and then lives in the model: each step feeds the
 current (predicted) observation and the policy's action to the model, which is dynamical consistency (3.3.3) at
 imagination time. Rewards and ends come either from the task's reward in closed form applied to the predicted
-observations (``known_reward``, e.g. the thesis's 5.8, from drrl's environment registry), less the cost of the action
-where the task charges it (``action_cost``, e.g. Reacher's ‖a‖²), or from the model's reward and end heads.
-Where some observation entries follow in closed form from the others (``complete_observation``, e.g. Baxter's
+observations (``TaskKnowledge.reward``, e.g. the thesis's 5.8, from drrl's environment registry), less the cost of
+the action where the task charges it (``action_cost``, e.g. Reacher's ‖a‖²), or from the model's reward and end
+heads. Where some observation entries follow in closed form from the others (``complete_observation``, e.g. Baxter's
 end-point offsets from its joint angles), each prediction is completed by it before anything reads it. Nothing here
 touches the real environment: imagined steps cost no real samples, and the training loop counts them apart.
 
@@ -33,6 +33,7 @@ from gymnasium.vector.utils import batch_space
 
 from drrl.models.base import LearnedModel, members_of, rebuilt, weights
 from drrl.models.data import model_actions
+from drrl.models.outcome import EndReward
 from drrl.models.recurrent import WorldModel
 from drrl.models.remembering import memory_space
 
@@ -47,9 +48,21 @@ ObservationFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
+class TaskKnowledge:
+    """What imagined episodes know of the task beside the model, each None where nothing is known (the model's own
+    reward and end heads are used where ``reward`` is None). Frozen and small, it travels to rollout workers with
+    the ``ImaginedWorld``."""
+
+    reward: RewardFunction | None = None  # reward and end in closed form (e.g. 5.8), or learned (``LearnedOutcome``)
+    action_cost: ActionCost | None = None  # the reward's share that depends on the action, taken from ``reward``
+    complete_observation: ObservationFunction | None = None  # recomputes the entries that follow from the others
+    end_reward: EndReward | None = None  # a terminating step's reward where the step alone decides it (5.8's failure)
+
+
+@dataclass(frozen=True)
 class ImaginedWorld:
     """What an ``ImaginedEnv`` is made of, small enough to send to another process: the model's settings and
-    weights, the real start observations and the task's horizon and reward. ``make`` builds the env (an
+    weights, the real start observations and the task's horizon and knowledge. ``make`` builds the env (an
     ``EnvSource`` of drrl.envs.batch), so that rollout workers can step imagined episodes as they step real ones."""
 
     model_type: type  # a LearnedModel class, e.g. drrl.models.recurrent.WorldModel
@@ -58,11 +71,9 @@ class ImaginedWorld:
     start_observations: np.ndarray
     action_space: spaces.Space
     horizon: int
-    known_reward: RewardFunction | None = None
+    task: TaskKnowledge = TaskKnowledge()
     disagreement_penalty: float = 0.0
-    complete_observation: ObservationFunction | None = None
     memory: bool = False
-    action_cost: ActionCost | None = None
 
     @classmethod
     def of(
@@ -71,11 +82,9 @@ class ImaginedWorld:
         start_observations: np.ndarray,
         action_space: spaces.Space,
         horizon: int,
-        known_reward: RewardFunction | None = None,
+        task: TaskKnowledge = TaskKnowledge(),
         disagreement_penalty: float = 0.0,
-        complete_observation: ObservationFunction | None = None,
         memory: bool = False,
-        action_cost: ActionCost | None = None,
     ) -> ImaginedWorld:
         return cls(
             type(model),
@@ -84,11 +93,9 @@ class ImaginedWorld:
             np.asarray(start_observations, dtype=np.float32),
             action_space,
             horizon,
-            known_reward,
+            task,
             disagreement_penalty,
-            complete_observation,
             memory,
-            action_cost,
         )
 
     def make(self, num_envs: int) -> ImaginedEnv:
@@ -98,11 +105,9 @@ class ImaginedWorld:
             num_envs,
             self.action_space,
             self.horizon,
-            self.known_reward,
+            self.task,
             self.disagreement_penalty,
-            self.complete_observation,
             self.memory,
-            self.action_cost,
         )
 
 
@@ -114,12 +119,11 @@ class ImaginedEnv(VectorEnv):
         start_observations: real start observations (S, o) to reset from.
         action_space: the real env's single action space (the policy's actions pass through unchanged).
         horizon: steps after which an imagined episode is truncated (the real task's).
-        known_reward: reward and end in closed form; None to use the model's own heads (end when p̂ > 0.5).
+        task: the reward and end, action cost and observation completion known beside the model; the model's own
+            reward and end heads (end when p̂ > 0.5) where no reward is known.
         disagreement_penalty: λ in r ← r − λ · disagreement (``model.disagreement``), 0 for none.
-        complete_observation: recomputes the observation entries that follow from the others; None for none.
         memory: observations are [ô_t, h_{t−1}], the prediction and the state it was predicted from (the model's
             ``memory``, ``drrl.models.remembering``), for a policy that reads the model's memory.
-        action_cost: the known reward's share that depends on the action, taken from it; None for none.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
@@ -131,11 +135,9 @@ class ImaginedEnv(VectorEnv):
         num_envs: int,
         action_space: spaces.Space,
         horizon: int,
-        known_reward: RewardFunction | None = None,
+        task: TaskKnowledge = TaskKnowledge(),
         disagreement_penalty: float = 0.0,
-        complete_observation: ObservationFunction | None = None,
         memory: bool = False,
-        action_cost: ActionCost | None = None,
     ):
         starts = np.array(start_observations, dtype=np.float32)  # a copy: a Ray worker's arrays are read-only
         if starts.ndim != 2 or len(starts) == 0:
@@ -143,11 +145,9 @@ class ImaginedEnv(VectorEnv):
         self.model = model
         self.num_envs = num_envs
         self.horizon = horizon
-        self.known_reward = known_reward
+        self.task = task
         self.disagreement_penalty = disagreement_penalty
-        self.complete_observation = complete_observation
         self.memory = memory
-        self.action_cost = action_cost
         self.device = model.device
         self._starts = torch.as_tensor(starts, device=self.device)
         bound = np.finfo(np.float32).max
@@ -207,14 +207,15 @@ class ImaginedEnv(VectorEnv):
             self._grouped(self._observation), self._grouped(action), self._state, self._grouped(self._observed)
         )
         previous, self._observation = self._observation, self._own(prediction.observations)
-        if self.complete_observation is not None:
-            completed = self.complete_observation(previous.cpu().numpy(), self._observation.cpu().numpy())
+        task = self.task
+        if task.complete_observation is not None:
+            completed = task.complete_observation(previous.cpu().numpy(), self._observation.cpu().numpy())
             self._observation = torch.as_tensor(completed, dtype=previous.dtype, device=self.device)
         self.elapsed_steps += 1
-        if self.known_reward is not None:
-            reward, terminated = self.known_reward(self._observation.cpu().numpy(), self.elapsed_steps)
-            if self.action_cost is not None:
-                reward = reward - self.action_cost(action.cpu().numpy())
+        if task.reward is not None:
+            reward, terminated = task.reward(self._observation.cpu().numpy(), self.elapsed_steps)
+            if task.action_cost is not None:
+                reward = reward - task.action_cost(action.cpu().numpy())
         else:
             reward = self._own(prediction.rewards).cpu().numpy().astype(np.float64)
             terminated = self._own(prediction.ends).cpu().numpy() > 0.5

@@ -1,5 +1,6 @@
 """The kinds of world model a model-based run can use, each one module behind ``LearnedModel``: how to build one
-and how to fit it to real episodes.
+and how to fit it to real episodes (its fitter, registered in ``FITTERS`` by its class: a new kind is a module and a
+row here).
 
 | kind | module | fitted by |
 | --- | --- | --- |
@@ -11,7 +12,7 @@ and how to fit it to real episodes.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 
@@ -24,6 +25,24 @@ from drrl.models.recurrent import NETWORK_KINDS, WorldModel
 
 LEAST_SQUARES = {"linear": LinearModel, "polynomial": PolynomialModel}  # the kinds fitted in closed form
 MODEL_KINDS = (*NETWORK_KINDS, *LEAST_SQUARES)
+# (model, buffer, settings, seed, split_seed, mirror) -> a report per member, the model fitted in place
+Fitter = Callable[..., list[FitReport]]
+
+
+def fit_least_squares(
+    model: LinearModel,
+    buffer: EpisodeBuffer,
+    settings: FitSettings,
+    seed: int = 0,
+    split_seed: int | None = None,
+    mirror: Mirror | None = None,
+) -> list[FitReport]:
+    """``fit_linear``, whose held-out episodes are drawn from ``seed`` at every fit, as each fit starts from
+    nothing (``split_seed`` places only the recurrent models' held-out episodes)."""
+    return fit_linear(model, buffer, settings, seed, mirror)
+
+
+FITTERS: dict[type, Fitter] = {WorldModel: fit, LinearModel: fit_least_squares, PolynomialModel: fit_least_squares}
 
 
 def make_model(
@@ -64,10 +83,7 @@ def fit_model(
     mirror: Mirror | None = None,
 ) -> list[FitReport]:
     """Fit ``model`` in place to ``buffer`` (and the episodes' mirror images, where ``mirror`` gives the task's
-    reflection symmetry) as its kind is fitted; a report per member. A recurrent model's held-out episodes are
-    placed by ``split_seed`` (``drrl.models.fit.split_episodes``), the linear model's drawn from ``seed`` at every
-    fit (``drrl.models.linear.split_at_random``)."""
-    if isinstance(model, LinearModel):
-        return fit_linear(model, buffer, settings, seed, mirror)
-    assert isinstance(model, WorldModel)
-    return fit(model, buffer, settings, seed, split_seed, mirror)
+    reflection symmetry) by its kind's fitter (``FITTERS``); a report per member. A recurrent model's held-out
+    episodes are placed by ``split_seed`` (``drrl.models.fit.split_episodes``), the linear model's drawn from
+    ``seed`` at every fit (``drrl.models.linear.split_at_random``)."""
+    return FITTERS[type(model)](model, buffer, settings, seed, split_seed, mirror)
