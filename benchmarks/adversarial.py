@@ -33,7 +33,7 @@ from pydantic import ValidationError
 from drrl.cli import main
 from drrl.runs import CHECKPOINT, CONFIG, METRICS
 from drrl.settings import TrainConfig, describe_errors, load_config_file
-from drrl.train import prepare
+from drrl.training.train import prepare
 
 FIELDS = [*TrainConfig.model_fields, "popsise", "model-based"]
 NASTY = [

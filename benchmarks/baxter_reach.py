@@ -1,7 +1,7 @@
 """Real training episodes until the centre policy reaches Baxter's target (thesis 5.2, reward 5.10).
 
-For each seed, drrl's training loop (``drrl.loop.run``, what ``drrl.train.train`` runs) spends a budget of real
-episodes on PGPE over a Baxter reach env. Every ``--probe-every`` generations the centre policy μ runs
+For each seed, drrl's training loop (``drrl.training.loop.run``, what ``drrl.training.train.train`` runs) spends
+a budget of real episodes on PGPE over a Baxter reach env. Every ``--probe-every`` generations the centre policy μ runs
 ``--eval-episodes`` fresh episodes (counted apart, never as training), and we record the fraction that end with the
 end-point(s) within 0.05 m of the target(s) and not failed. Prints, per seed, the real episodes and training wall time
 when μ first reached ``--goal`` (95 % for a fixed target) and the final fraction; then medians over seeds.
@@ -29,11 +29,11 @@ import torch
 
 from drrl.envs.batch import ActionMap, make_batch_env
 from drrl.envs.baxter.task import reach_fraction
-from drrl.loop import Counters, Setup, Subscriber, run
 from drrl.policies import Policy
 from drrl.runs import RunFolder
 from drrl.settings import EnvSchedule, TrainConfig
-from drrl.train import build_policy, prepare, subscribers
+from drrl.training.loop import Counters, Setup, Subscriber, run
+from drrl.training.train import build_policy, prepare, subscribers
 
 
 @torch.inference_mode()
@@ -130,7 +130,7 @@ def run_seed(args, seed: int) -> list[dict]:
     )
     with tempfile.TemporaryDirectory() as folder:
         probe = ReachProbe(config, args.eval_episodes, args.verbose, args.goal if args.stop_at_goal else None)
-        try:  # drrl.train.train's loop and run folder, with the probe told of every checkpoint
+        try:  # drrl.training.train.train's loop and run folder, with the probe told of every checkpoint
             run(prepare(config), [*subscribers(RunFolder(folder), progress=False), probe])
         except GoalReached:
             pass

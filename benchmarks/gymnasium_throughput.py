@@ -38,10 +38,10 @@ from evotorch.algorithms import PGPE
 from evotorch.neuroevolution import GymNE, VecGymNE
 
 from drrl.envs.batch import choose_engine
-from drrl.loop import run_generation
 from drrl.settings import TrainConfig
 from drrl.streams import Stream, derive_seed
-from drrl.train import prepare
+from drrl.training.loop import run_generation
+from drrl.training.train import prepare
 
 SIGMA_INIT, CENTER_LR, SIGMA_LR, MAX_SIGMA_CHANGE = 1.0, 0.1, 0.01, 0.2
 

@@ -31,7 +31,7 @@ import torch
 from drrl.compare import ACTION_SPACE, method_config, method_rows
 from drrl.envs.registry import lookup
 from drrl.settings.presets import suggested
-from drrl.train import train
+from drrl.training.train import train
 
 
 def run(job: tuple[str, int, int, dict, dict]) -> dict:

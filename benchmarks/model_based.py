@@ -1,5 +1,6 @@
 """Real training episodes until the centre policy is balanced / near-optimal on the thesis cart-pole (5.1), or the
-swing-up is solved, with model-based PGPE (drrl.model_based) at its defaults; with --quality, the model-quality plot.
+swing-up is solved, with model-based PGPE (drrl.training.model_based) at its defaults; with --quality, the
+model-quality plot.
 
 Every iteration measures the centre policy on 50 fresh real episodes (counted apart from training). Prints one row
 per seed, then medians over seeds; a seed that never gets there counts as worse than any that does.
@@ -22,11 +23,11 @@ import torch
 from sample_efficiency import first_reached, median_or_miss
 
 from drrl.envs.registry import lookup
-from drrl.loop import run
 from drrl.models import EpisodeBuffer
 from drrl.models.quality import model_quality_report
 from drrl.settings import ModelBasedSettings, TrainConfig, load_config_file
-from drrl.train import prepare
+from drrl.training.loop import run
+from drrl.training.train import prepare
 
 
 def main() -> None:

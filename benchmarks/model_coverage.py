@@ -23,7 +23,6 @@ import torch
 
 from drrl.envs.batch import RegisteredEnv, make_batch_env
 from drrl.envs.registry import lookup
-from drrl.model_based import build_model, collect, episode_horizon
 from drrl.models import EpisodeBuffer
 from drrl.models.imagined import ImaginedEnv, TaskKnowledge
 from drrl.models.kinds import fit_model
@@ -32,7 +31,8 @@ from drrl.models.trainer import fitting_settings
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
-from drrl.train import build_policy, open_run
+from drrl.training.model_based import build_model, collect, episode_horizon
+from drrl.training.train import build_policy, open_run
 
 HORIZONS = (1, 10, 50, 100, 300)
 

@@ -28,7 +28,7 @@ from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
 from drrl.settings import TrainConfig
 from drrl.settings.flat import flattened
-from drrl.train import train
+from drrl.training.train import train
 
 # PGPE settings for recurrent policies, tuned on 4 seeds per task (see BENCHMARKS.md). Both use a σ below the
 # default 1.0: every recurrent weight is perturbed, and a w × w recurrent block with N(0, 1) entries has spectral

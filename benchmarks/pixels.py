@@ -33,13 +33,13 @@ import torch
 import drrl.envs  # noqa: F401  (registers the envs)
 from drrl.envs.batch import make_batch_env
 from drrl.envs.registry import lookup
-from drrl.model_based import ModelBased, frame_autoencoder
 from drrl.models.data import EpisodeRecorder
 from drrl.models.frames import Encoding, fit_autoencoder
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
 from drrl.settings import ModelBasedSettings
-from drrl.train import open_run, prepare
+from drrl.training.model_based import ModelBased, frame_autoencoder
+from drrl.training.train import open_run, prepare
 
 
 def steps_per_second(env_id: str, num_envs: int, steps: int = 200) -> float:

@@ -30,7 +30,7 @@ from drrl.envs.batch import make_batch_env
 from drrl.rollout import Workload, make_backend
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
-from drrl.train import build_policy, build_search
+from drrl.training.train import build_policy, build_search
 
 TICKS = os.sysconf("SC_CLK_TCK")
 

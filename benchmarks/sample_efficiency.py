@@ -20,7 +20,7 @@ import torch
 from drrl.search import SEARCHES
 from drrl.settings import TrainConfig
 from drrl.settings.flat import flattened
-from drrl.train import train
+from drrl.training.train import train
 
 CRITERIA = ("balanced", "near_optimal")
 

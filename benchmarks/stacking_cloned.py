@@ -1,5 +1,5 @@
-"""Learning to stack from the scripted stacker's demonstrations (``drrl.cloning``): real episodes, real steps and wall
-time a run takes, and how often its policy builds the stack.
+"""Learning to stack from the scripted stacker's demonstrations (``drrl.training.cloning``): real episodes, real steps
+and wall time a run takes, and how often its policy builds the stack.
 
 For each seed, ``drrl train ENV`` with the env's defaults (the settings given override them): the first centre
 cloned from the scripted stacker's demonstrations in DAgger rounds, then PGPE; then its best centre measured, as
@@ -19,11 +19,11 @@ from pathlib import Path
 
 from drrl.envs.batch import make_batch_env
 from drrl.envs.baxter.stacking import stacked_fraction
-from drrl.loop import measure
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
 from drrl.streams import Stream, derive_seed
-from drrl.train import build_policy, open_run, train, trained_center
+from drrl.training.loop import measure
+from drrl.training.train import build_policy, open_run, train, trained_center
 
 EPISODES = 50
 

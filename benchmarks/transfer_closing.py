@@ -25,7 +25,7 @@ from transfer_gap import measure
 from drrl.envs.batch import make_batch_env
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
-from drrl.train import build_policy, train
+from drrl.training.train import build_policy, train
 
 STAND_IN = {"stand_in": {"seed": 0}}  # the registered stand-in's robot
 

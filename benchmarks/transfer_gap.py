@@ -2,8 +2,8 @@
 robot (``drrl.envs.baxter.standin``: masses and damping off by up to ±20 %, commands a period late and lagging, noisy
 joint sensors).
 
-For each seed, ``drrl.train.train`` trains the one-arm fixed-target reach (the README's settings) in the nominal
-simulator; its best measured centre then runs ``--episodes`` fresh episodes on the nominal robot and on each of
+For each seed, ``drrl.training.train.train`` trains the one-arm fixed-target reach (the README's settings) in the
+nominal simulator; its best measured centre then runs ``--episodes`` fresh episodes on the nominal robot and on each of
 ``--robots`` stand-ins (counted apart from training). Prints the fraction reached (every end-point within 0.05 m at
 the end, nothing failed) and the fraction failed, per seed and robot, then medians.
 
@@ -25,7 +25,7 @@ from drrl.envs.batch import make_batch_env
 from drrl.envs.baxter.task import reach_fraction
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
-from drrl.train import build_policy, train
+from drrl.training.train import build_policy, train
 
 
 def measure(policy, center: torch.Tensor, options: dict, episodes: int) -> tuple[float, float]:

@@ -8,7 +8,7 @@ SETTINGS_TABLE = "<!-- every setting -->"
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
     if SETTINGS_TABLE in markdown:
-        from drrl.cli_settings import reference_table
+        from drrl.cli.settings import reference_table
 
         return markdown.replace(SETTINGS_TABLE, reference_table())
     if page.file.src_uri != "benchmarks.md":

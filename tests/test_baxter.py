@@ -604,8 +604,8 @@ def test_headless_gl_prefers_egl_then_osmesa_and_else_leaves_rendering_off(monke
 def test_short_training_runs_and_counts_every_step():
     """Four candidates near the zero policy (σ = 0.001) hold still for max_steps = 25 steps: nothing fails, so
     every episode lasts exactly 25 steps."""
-    from drrl.loop import run
-    from drrl.train import prepare
+    from drrl.training.loop import run
+    from drrl.training.train import prepare
 
     config = TrainConfig(
         env="drrl/BaxterReachRight-v0", popsize=4, budget=8, sigma_init=0.001, max_steps=25, eval_episodes=2

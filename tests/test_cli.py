@@ -10,12 +10,13 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from drrl.cli import advice_after_a_miss, main
+from drrl.cli import main
+from drrl.cli.commands import advice_after_a_miss
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
 from drrl.settings.flat import flattened
 from drrl.settings.presets import PRESETS, TASKS
-from drrl.train import prepare
+from drrl.training.train import prepare
 
 SMALL = ["--budget", "40", "--popsize", "10", "--eval-episodes", "5", "--eval-share", "1", "--quiet"]
 
@@ -274,7 +275,9 @@ def test_an_occupied_out_is_refused_before_any_work_and_a_refused_run_leaves_no_
     (occupied / "notes.txt").write_text("mine")
     users.mkdir()
     with monkeypatch.context() as patched:
-        patched.setattr("drrl.cli.prepare", lambda *args, **kwargs: pytest.fail("prepared before checking --out"))
+        patched.setattr(
+            "drrl.cli.commands.prepare", lambda *args, **kwargs: pytest.fail("prepared before checking --out")
+        )
         result = CliRunner().invoke(main, ["train", "cartpole", "--out", str(occupied)])
     assert result.exit_code == 2 and "already holds files; choose another --out" in result.output
     assert (occupied / "notes.txt").read_text() == "mine"

@@ -1,5 +1,5 @@
-"""Behaviour cloning (drrl.cloning): the demonstrator's actions are what is recorded, episodes and steps are counted
-exactly, the fit finds a known linear demonstrator, and a run starts its search from the clone."""
+"""Behaviour cloning (drrl.training.cloning): the demonstrator's actions are what is recorded, episodes and steps are
+counted exactly, the fit finds a known linear demonstrator, and a run starts its search from the clone."""
 
 import csv
 
@@ -10,14 +10,14 @@ from click.testing import CliRunner
 from pydantic import ValidationError
 
 from drrl.cli import main
-from drrl.cloning import Demonstrations, clone, cloned, demonstrated
 from drrl.envs.baxter.scripted import ScriptedStacker
 from drrl.envs.baxter.stack_env import BaxterStackVectorEnv
 from drrl.envs.registry import lookup
 from drrl.policies import make_policy
 from drrl.settings import TrainConfig, describe_errors
 from drrl.streams import Stream, derive_seed
-from drrl.train import prepare
+from drrl.training.cloning import Demonstrations, clone, cloned, demonstrated
+from drrl.training.train import prepare
 
 GAINS = np.array([0.3, 0.2, -1.5, -0.4], dtype=np.float32)  # a linear demonstrator on the thesis cart-pole
 

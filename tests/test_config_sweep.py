@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from drrl.settings import ModelBasedSettings, TrainConfig, describe_errors, load_config_file
 from drrl.settings.flat import FLAT
-from drrl.train import prepare
+from drrl.training.train import prepare
 
 VALUES = st.recursive(
     st.none()
@@ -169,17 +169,17 @@ FLAG_VALUES = st.one_of(
 def test_generated_flags_start_a_run_or_are_refused_in_one_message(tmp_path_factory, flags):
     from click.testing import CliRunner
 
-    import drrl.cli
+    import drrl.cli.commands
 
     prepared = []
-    original = drrl.cli.run_and_report
-    drrl.cli.run_and_report = lambda setup, folder, attached, counters=None: prepared.append(setup.close())
+    original = drrl.cli.commands.run_and_report
+    drrl.cli.commands.run_and_report = lambda setup, folder, attached, counters=None: prepared.append(setup.close())
     try:
         args = [part for flag, value in flags for part in ((flag,) if flag == "--model-based" else (flag, value))]
         out = tmp_path_factory.mktemp("flags") / "run"
         result = CliRunner().invoke(drrl.cli.main, ["train", *args, "--out", str(out), "--quiet"])
     finally:
-        drrl.cli.run_and_report = original
+        drrl.cli.commands.run_and_report = original
     assert result.exit_code in (0, 2), (args, result.output, result.exception)
     assert result.exit_code == 0 or (isinstance(result.exception, SystemExit) and "Error" in result.output), args
     assert (result.exit_code == 0) == bool(prepared), args

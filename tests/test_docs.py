@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-import drrl.cli
-import drrl.train
+import drrl.cli.commands
+import drrl.training.train
 from drrl.cli import main
 from drrl.settings import Demonstrations, TrainConfig
 
@@ -77,13 +77,13 @@ def ray(*arguments: str) -> None:
 def test_every_block_of_the_page_runs(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "configs").symlink_to(ROOT / "configs")
-    prepare = drrl.train.prepare
+    prepare = drrl.training.train.prepare
 
     def prepare_shortened(config, *args, **kwargs):
         return prepare(shortened(config), *args, **kwargs)
 
-    monkeypatch.setattr(drrl.cli, "prepare", prepare_shortened)
-    monkeypatch.setattr(drrl.train, "prepare", prepare_shortened)
+    monkeypatch.setattr(drrl.cli.commands, "prepare", prepare_shortened)
+    monkeypatch.setattr(drrl.training.train, "prepare", prepare_shortened)
     ran, started_ray = 0, False
     try:
         for language, title, text in blocks(page):

@@ -10,10 +10,10 @@ from test_loop import StopAfter, metrics
 
 from drrl.cli import main
 from drrl.envs.batch import make_batch_env
-from drrl.loop import run
 from drrl.runs import RunFolder
 from drrl.settings import EnvSchedule, TrainConfig, describe_errors
-from drrl.train import prepare, resume, subscribers
+from drrl.training.loop import run
+from drrl.training.train import prepare, resume, subscribers
 
 # Pendulum's gravity g (Gymnasium's default 10) from 20 down to 5 over the whole budget of 3 generations
 SCHEDULED = TrainConfig(

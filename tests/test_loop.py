@@ -3,6 +3,7 @@ the searches behind one interface; the layers import downward only."""
 
 import ast
 import csv
+import re
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -11,12 +12,12 @@ import pytest
 import torch
 
 from drrl.envs.registry import lookup
-from drrl.loop import Counters, Subscriber, run, solved
 from drrl.rollout.moments import Moments
 from drrl.runs import RunFolder
 from drrl.settings import ModelBasedSettings, TrainConfig
 from drrl.streams import GENERATION_STEPS, Stream, derive_seed, imagined_seed
-from drrl.train import prepare, resume, subscribers, train
+from drrl.training.loop import Counters, Subscriber, run, solved
+from drrl.training.train import prepare, resume, subscribers, train
 
 SOURCE = Path(__file__).parents[1] / "src" / "drrl"
 TINY_MODEL = {
@@ -210,25 +211,24 @@ def test_tensorboard_logs_every_metric_against_real_episodes(tmp_path):
 # ------------------------------------------------------------------------------------------------ the layers
 
 LAYER_RULES = {  # a module (or package) -> drrl modules it must not import, directly or lazily
-    "models": ("drrl.envs", "drrl.search", "drrl.rollout", "drrl.loop", "drrl.train", "drrl.settings"),
-    "settings": (
-        "drrl.rollout",
-        "drrl.loop",
-        "drrl.model_free",
-        "drrl.model_based",
-        "drrl.action_space",
-        "drrl.train",
+    "training": ("drrl.cli", "drrl.compare", "drrl.video", "drrl.reference_ppo"),
+    "training/model_based.py": ("drrl.training.model_free", "drrl.training.train"),
+    "training/model_free.py": ("drrl.training.model_based", "drrl.training.action_space", "drrl.training.train"),
+    "training/action_space.py": ("drrl.training.model_based", "drrl.training.train"),
+    "training/loop.py": (
+        "drrl.training.model_free",
+        "drrl.training.model_based",
+        "drrl.training.action_space",
+        "drrl.training.train",
         "drrl.runs",
-        "drrl.cli",
     ),
-    "model_based.py": ("drrl.model_free", "drrl.train", "drrl.cli"),
-    "model_free.py": ("drrl.model_based", "drrl.action_space", "drrl.train", "drrl.cli"),
-    "action_space.py": ("drrl.model_based", "drrl.train", "drrl.cli"),
-    "policy_gradient": ("drrl.models", "drrl.loop", "drrl.settings", "drrl.train", "drrl.model_free", "drrl.envs"),
-    "loop.py": ("drrl.model_free", "drrl.model_based", "drrl.action_space", "drrl.train", "drrl.cli", "drrl.runs"),
+    "runs.py": ("drrl.training", "drrl.cli"),
+    "settings": ("drrl.rollout", "drrl.training", "drrl.runs", "drrl.cli"),
+    "models": ("drrl.envs", "drrl.search", "drrl.rollout", "drrl.training", "drrl.settings"),
+    "policy_gradient": ("drrl.models", "drrl.training", "drrl.settings", "drrl.envs"),
     "search": ("drrl.envs", "drrl.models", "drrl.rollout", "drrl.policies", "drrl.settings"),
-    "envs": ("drrl.models", "drrl.search", "drrl.rollout", "drrl.policies", "drrl.loop", "drrl.settings"),
-    "rollout": ("drrl.models", "drrl.search", "drrl.loop", "drrl.train", "drrl.settings"),
+    "envs": ("drrl.models", "drrl.search", "drrl.rollout", "drrl.policies", "drrl.training", "drrl.settings"),
+    "rollout": ("drrl.models", "drrl.search", "drrl.training", "drrl.settings"),
     "streams.py": ("drrl",),  # the lowest: numpy only
 }
 
@@ -255,6 +255,26 @@ def test_layers_import_downward_only(where):
     for file in files:
         bad = [name for name in drrl_imports(file) if name.startswith(LAYER_RULES[where])]
         assert not bad, f"{file.relative_to(SOURCE)} imports {bad}"
+
+
+def test_the_package_root_keeps_a_few_entry_modules_and_subpackages_group_the_rest():
+    modules = sorted(file.name for file in SOURCE.glob("*.py") if file.name != "__init__.py")
+    assert len(modules) <= 6, modules
+
+
+def test_the_architecture_page_has_a_row_for_every_module_and_none_for_a_module_that_is_gone():
+    rows = re.findall(r"^\| `([\w/.]+)` \|", (SOURCE.parents[1] / "docs" / "architecture.md").read_text(), re.M)
+    described = {row for row in rows if row.endswith(".py")}
+    folders = tuple(row for row in rows if row.endswith("/"))  # a package described as a whole (envs/compiled/)
+    modules = {
+        str(file.relative_to(SOURCE))
+        for file in SOURCE.rglob("*.py")
+        if not str(file.relative_to(SOURCE)).startswith(folders)
+    }
+    undocumented = {module for module in modules - described if not module.endswith("__init__.py")}
+    assert not undocumented, f"docs/architecture.md has no row for {sorted(undocumented)}"
+    assert not described - modules, f"docs/architecture.md describes {sorted(described - modules)}, which do not exist"
+    assert all((SOURCE / folder).is_dir() for folder in folders)
 
 
 def test_no_import_circle():
@@ -285,8 +305,8 @@ def test_no_import_circle():
 
 
 def test_the_model_guard_warns_when_the_model_promises_far_more_than_reality_gives():
-    from drrl.loop import Counters
-    from drrl.subscribers import ModelGuard
+    from drrl.training.loop import Counters
+    from drrl.training.subscribers import ModelGuard
 
     said = []
     guard = ModelGuard(say=said.append)

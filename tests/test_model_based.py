@@ -13,13 +13,13 @@ import drrl.models.trainer
 from drrl.cli import main
 from drrl.compare import DEFAULT_METHODS, MODEL_BASED, PPO, compare, method_config
 from drrl.envs.registry import lookup
-from drrl.loop import better_center, run
 from drrl.models import Episode, EpisodeBuffer, FitReport, FitSettings, TaskKnowledge
 from drrl.models.trainer import fitting_settings, held_out_loss
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig, load_config_file
 from drrl.settings.flat import flattened
-from drrl.train import prepare, train
+from drrl.training.loop import better_center, run
+from drrl.training.train import prepare, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -546,7 +546,7 @@ def test_compare_without_stable_baselines3_says_what_to_install(tmp_path, monkey
 )
 def test_compare_spends_the_envs_own_budgets_unless_told(env, budgets, tmp_path, monkeypatch):
     asked = []
-    monkeypatch.setattr("drrl.cli_model_based.compare", lambda out, seeds, *budget_args, **_: asked.append(budget_args))
+    monkeypatch.setattr("drrl.cli.compare.compare", lambda out, seeds, *budget_args, **_: asked.append(budget_args))
     for extra, expected in (([], budgets), (["--budget", "1024", "--model-based-budget", "4"], (1024, 4))):
         result = CliRunner().invoke(main, ["compare", "--env", env, "--out", str(tmp_path), *extra])
         assert result.exit_code == 0, result.output
@@ -555,7 +555,7 @@ def test_compare_spends_the_envs_own_budgets_unless_told(env, budgets, tmp_path,
 
 def test_compare_spends_a_gymnasium_env_s_own_model_based_budget(tmp_path, monkeypatch):
     asked = []
-    monkeypatch.setattr("drrl.cli_model_based.compare", lambda out, seeds, *budget_args, **_: asked.append(budget_args))
+    monkeypatch.setattr("drrl.cli.compare.compare", lambda out, seeds, *budget_args, **_: asked.append(budget_args))
     command = ["compare", "--env", "Pendulum-v1", "--method", MODEL_BASED, "--out", str(tmp_path)]
     result = CliRunner().invoke(main, command)
     assert result.exit_code == 0, result.output
@@ -608,8 +608,8 @@ def test_compare_on_the_swing_up_gives_every_method_the_swing_ups_own_settings()
 def test_model_based_runs_on_a_discrete_action_space_with_one_hot_actions(one_thread):
     from gymnasium import spaces
 
-    from drrl.loop import run
     from drrl.models.data import model_actions
+    from drrl.training.loop import run
 
     assert model_actions([2, 0], spaces.Discrete(3)).tolist() == [[0, 0, 1], [1, 0, 0]]
     assert model_actions([[0.5], [-1.0]], spaces.Box(-1, 1, (1,))).tolist() == [[0.5], [-1.0]]
@@ -747,7 +747,7 @@ def test_a_search_that_ends_worse_in_the_model_is_undone_when_asked(keep, promis
     promises here given: new, old) is undone to its whole state before the search; otherwise it stands."""
     import torch
 
-    from drrl.model_based import InModelSearch
+    from drrl.training.model_based import InModelSearch
 
     def search_gone_astray(self, search, counters, iteration):
         state = search.state_dict()

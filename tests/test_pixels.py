@@ -11,11 +11,11 @@ from test_loop import StopAfter, metrics, tensors
 import drrl.envs  # noqa: F401  (registers the envs)
 from drrl.cli import main
 from drrl.envs.pixels import FRAME_SIZE, VIEW_HALF_WIDTH, draw_frames
-from drrl.loop import run
 from drrl.models.frames import STILL, Encoding, FrameAutoencoder, fit_autoencoder
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
-from drrl.train import prepare, resume, subscribers, train
+from drrl.training.loop import run
+from drrl.training.train import prepare, resume, subscribers, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 

@@ -12,13 +12,13 @@ from test_loop import StopAfter, metrics, tensors
 
 from drrl.cli import main
 from drrl.envs.batch import make_batch_env
-from drrl.loop import run
 from drrl.policies import make_policy
 from drrl.policy_gradient import ENAC, Episodes, Reinforce, collect, log_probs
 from drrl.rollout import Evaluation, evaluate
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
-from drrl.train import prepare, resume, subscribers, train
+from drrl.training.loop import run
+from drrl.training.train import prepare, resume, subscribers, train
 
 
 def bandit_episodes(theta: float, sigma: float, target: float, batch: int, seed: int = 0) -> Episodes:

@@ -14,7 +14,7 @@ from drrl.envs.batch import choose_engine, is_frames, make_batch_env
 from drrl.envs.registry import lookup
 from drrl.envs.rendered import GreyFrames
 from drrl.runs import RunFolder
-from drrl.train import train
+from drrl.training.train import train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 

@@ -12,7 +12,7 @@ from drrl.cli import main
 from drrl.compare import curve_budget, method_config
 from drrl.runs import RunFolder, learning_curve
 from drrl.settings import TrainConfig
-from drrl.train import train
+from drrl.training.train import train
 
 CRITERIA = ("balanced", "near_optimal")  # the thesis cart-pole's verdict
 SOLVING = TrainConfig(restart_every=40, budget=3000, seed=0)  # attempts 1-3 miss near_optimal, attempt 4 solves

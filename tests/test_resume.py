@@ -16,7 +16,7 @@ from click.testing import CliRunner
 
 from drrl.cli import main
 from drrl.runs import RunFolder
-from drrl.train import prepare_resume
+from drrl.training.train import prepare_resume
 
 RUN = ["cartpole", "--popsize", "8", "--eval-episodes", "4", "--seed", "4", "--quiet"]
 SETTINGS = [*RUN, "--budget", "128"]  # 16 generations

@@ -11,12 +11,12 @@ from click.testing import CliRunner
 from pydantic import ValidationError
 
 from drrl.cli import main
-from drrl.cli_settings import FLAGS, reference_table
+from drrl.cli.settings import FLAGS, reference_table
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig, describe_errors
 from drrl.settings.flat import FLAT, SEARCHES, WORLDS, flattened, nested
 from drrl.settings.presets import PRESETS, TASKS
-from drrl.train import train
+from drrl.training.train import train
 
 SOURCE = Path(__file__).parents[1] / "src" / "drrl"
 BAD_VALUES = {int: -7, float: -1e9, bool: "maybe", str: "no-such-choice"}

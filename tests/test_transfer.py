@@ -10,7 +10,7 @@ from test_model_based import QUICK_MODEL
 from drrl.cli import main
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
-from drrl.train import open_run, prepare, prepare_resume, train
+from drrl.training.train import open_run, prepare, prepare_resume, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -43,7 +43,7 @@ def test_a_run_starts_from_the_best_policy_and_the_world_model_of_another(source
 
 def test_a_transferred_run_tries_the_policy_it_was_given_in_its_first_real_episodes(source, monkeypatch):
     """A fresh run's first real episodes are explorers only (its μ is uninformed); a transferred run's start with μ."""
-    import drrl.model_based as model_based
+    import drrl.training.model_based as model_based
 
     out, checkpoint = source
     tried, collect = [], model_based.collect

@@ -2,11 +2,11 @@
 action-space policy gradients the thesis argues against.
 
 The methods: PGPE with its three samplers (REINFORCE-PGPE 2.28–2.29, SyS-PGPE 2.31–2.33, super-symmetric PGPE),
-model-based PGPE (2.3), REINFORCE with a baseline and eNAC in action space (2.2.2, 2.1.4; ``drrl.action_space``),
-and, as an outside reference, Stable-Baselines3's PPO (``drrl.reference_ppo``, extra ``drrl[sb3]``). For each
-method and each of N seeds, a run on the same task records the centre policy's average return over
-``eval_episodes`` fresh real episodes against the real training episodes spent so far. Each run's curve is held
-constant between its measurements (the centre policy does not change there), read on a common grid of real
+model-based PGPE (2.3), REINFORCE with a baseline and eNAC in action space (2.2.2, 2.1.4;
+``drrl.training.action_space``), and, as an outside reference, Stable-Baselines3's PPO (``drrl.reference_ppo``, extra
+``drrl[sb3]``). For each method and each of N seeds, a run on the same task records the centre policy's average
+return over ``eval_episodes`` fresh real episodes against the real training episodes spent so far. Each run's curve
+is held constant between its measurements (the centre policy does not change there), read on a common grid of real
 episodes, and summarised by the mean over seeds and a confidence band of one standard error of that mean on either
 side (about 68 %; none for a single seed). One standard error rather than 95 %: with the few seeds of a quick
 comparison a 95 % band needs Student's t quantiles (4.3 for 3 seeds), and a plain ±1 s.e. band reads the same at
@@ -28,7 +28,7 @@ import numpy as np
 from drrl.settings import TrainConfig
 from drrl.settings.flat import FLAT, run_kind, settings_of
 from drrl.settings.presets import task_settings
-from drrl.train import train
+from drrl.training.train import train
 
 MODEL_FREE = {"REINFORCE-PGPE": "single", "SyS-PGPE": "symmetric", "super-symmetric PGPE": "supersymmetric"}
 MODEL_BASED = "model-based PGPE"

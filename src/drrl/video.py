@@ -25,7 +25,7 @@ from drrl.envs.rendered import rendering_env
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder
-from drrl.train import as_read, check_same_spaces, open_run, policy_inputs, trained_center
+from drrl.training.train import as_read, check_same_spaces, open_run, policy_inputs, trained_center
 
 VIDEO_FORMATS = (".gif", ".mp4")
 INSTALL_MP4 = "writing MP4 needs imageio-ffmpeg: pip install 'drrl[render]' (or write a .gif)"
@@ -124,7 +124,7 @@ def record_episode(
     """Run the policy ``center`` (n,) for one episode of ``env`` (render_mode "rgb_array") through the rollout that
     trains and measures (``drrl.rollout.evaluate``, episode seed from ``seed``), keeping a frame at the start,
     then every k-th step, k = the env's ``render_fps`` / ``fps`` rounded (at least 1), and at the end. ``read``
-    gives the env as the policy reads it (a frame encoder in front, ``drrl.train.as_read``)."""
+    gives the env as the policy reads it (a frame encoder in front, ``drrl.training.train.as_read``)."""
     rate = env.metadata.get("render_fps", fps)
     recorder = FrameRecorder(env, period=max(1, round(rate / fps)))
     seen = recorder if read is None else read(recorder)

@@ -38,7 +38,8 @@ RewardFunction = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray
 ActionCost = Callable[[np.ndarray], np.ndarray]
 # 1-based steps (N,) at which episodes end by termination -> the rewards of those steps (N,)
 EndReward = Callable[[np.ndarray], np.ndarray]
-# observations (N, o) -> the env's actions (N, a): a scripted policy without memory (drrl.cloning copies its episodes)
+# observations (N, o) -> the env's actions (N, a): a scripted policy without memory (drrl.training.cloning copies
+# its episodes)
 Demonstrator = Callable[[np.ndarray], np.ndarray]
 # (observations (N, o), predicted next observations (N, o)) -> the next ones with the entries that follow from the
 # rest recomputed

@@ -2,7 +2,7 @@
 batched env.
 
 The interface is ``LearnedModel``; fitting is ``drrl.models.fit.fit``; the model-based world,
-a part of the training loop, lives one layer up in ``drrl.model_based``. This package imports of drrl only the
+a part of the training loop, lives one layer up in ``drrl.training.model_based``. This package imports of drrl only the
 Elman policies' cell (``drrl.policies.recurrent``); a task's closed-form reward comes in as a function.
 """
 

@@ -1,5 +1,5 @@
-"""The world model's fitting over a model-based run (``drrl.model_based``'s step 2): one fit an iteration, to every
-real episode so far, for every kind of model alike (``drrl.models.kinds.fit_model``).
+"""The world model's fitting over a model-based run (``drrl.training.model_based``'s step 2): one fit an iteration, to
+every real episode so far, for every kind of model alike (``drrl.models.kinds.fit_model``).
 
 The first fit starts from the model's initial weights, later ones from the previous weights (with their own,
 usually fewer, updates); a recurrent model's fits all hold out the same episodes (one split seed for the run), so

@@ -126,7 +126,7 @@ class CMAESSettings(Sampled):
 
 
 class PolicyGradientSettings(Stepped, Sampled):
-    """An action-space policy gradient (thesis 2.1.4, 2.2.2; ``drrl.action_space``): popsize ×
+    """An action-space policy gradient (thesis 2.1.4, 2.2.2; ``drrl.training.action_space``): popsize ×
     episodes_per_candidate exploring episodes an update, σ that of the actions."""
 
     name: Literal["reinforce", "enac"] = Field(description="the policy gradient: reinforce or enac")
@@ -139,7 +139,7 @@ ParameterSearch = Annotated[PGPESettings | CMAESSettings, Field(discriminator="n
 
 
 class Demonstrations(Part):
-    """The first centre cloned from real episodes of the env's scripted demonstrator (``drrl.cloning``)."""
+    """The first centre cloned from real episodes of the env's scripted demonstrator (``drrl.training.cloning``)."""
 
     episodes: int = Field(
         ge=1,
@@ -230,7 +230,7 @@ class RealGenerations(Shifted):
 
 
 class ModelFreeSettings(RealGenerations):
-    """Every generation on the real env (``drrl.model_free``)."""
+    """Every generation on the real env (``drrl.training.model_free``)."""
 
     kind: Literal["model-free"] = "model-free"
     search: ParameterSearch = Field(
@@ -267,7 +267,7 @@ class ModelFreeSettings(RealGenerations):
 
 
 class ActionSpaceSettings(RealGenerations):
-    """Model-free updates from episodes that explore by action (``drrl.action_space``)."""
+    """Model-free updates from episodes that explore by action (``drrl.training.action_space``)."""
 
     kind: Literal["action-space"] = "action-space"
     search: PolicyGradientSettings = Field(description="the action-space policy gradient")
@@ -275,8 +275,8 @@ class ActionSpaceSettings(RealGenerations):
 
 
 class ModelBasedSettings(Shifted):
-    """Model-based PGPE (thesis 2.3; ``drrl.model_based``): the world model, its fitting, and the data loop around
-    the search, which runs inside the model: popsize × episodes_per_candidate *imagined* episodes a generation.
+    """Model-based PGPE (thesis 2.3; ``drrl.training.model_based``): the world model, its fitting, and the data loop
+    around the search, which runs inside the model: popsize × episodes_per_candidate *imagined* episodes a generation.
 
     reward: "known" (the task's reward in closed form on predicted observations, first completed by the entries that
     follow in closed form from the others where the task has such, ``EnvEntry.complete_observation``), "learned" (a

@@ -146,7 +146,7 @@ def _reach_model_based(both: bool) -> dict[str, Any]:
 
 REACH_ONE_ARM_MODEL_BASED = _reach_model_based(both=False)
 REACH_BOTH_ARMS_MODEL_BASED = _reach_model_based(both=True)
-# A model-free run on a task the scripted stacker does starts from its clone (drrl.cloning): a tanh network of
+# A model-free run on a task the scripted stacker does starts from its clone (drrl.training.cloning): a tanh network of
 # 128 × 128 fitted to 64 of its real episodes, then PGPE with perturbations small enough that most candidates still
 # stack.
 STACKING_CLONED = {

@@ -11,7 +11,7 @@ the wood stacking the thesis announces, with Baxter's grippers.
 | ``grasping`` | the stacking scene: Rethink's electric grippers on the hands, pine blocks, contact sensors |
 | ``stacking`` | the stacking task: block positions, stack rule, rewards in 5.10's form and staged, the controllers |
 | ``stack_env`` | the native ``BaxterStackVectorEnv`` and the single ``BaxterStackEnv`` |
-| ``scripted`` | the scripted stacker, rules on the observation: the end-point tasks' demonstrator (``drrl.cloning``) |
+| ``scripted`` | the scripted stacker, rules on the observation: the end-point tasks' demonstrator (for cloning) |
 | ``standin`` | a stand-in for the real robot: masses and damping off, delayed and lagging commands, noisy sensors |
 | ``render`` | headless MuJoCo frames of the scene |
 

@@ -14,8 +14,8 @@ lowest block k not yet on its place:
 A gripper that opens stays where it is until it is open (so it never drags a block it lets go of), and the grip
 point moves sideways only once it is within 1–4 cm of its aim's height, so that it rises before it carries
 anything over the table. The grip point is driven toward its aim at 3 m/s per metre of error, at most 0.3 m/s per
-axis. Being memoryless it is a policy a network can copy from its episodes (``drrl.cloning``), a reference for what
-the task needs, a check that the task can be done, and the source of the starts from demonstrations
+axis. Being memoryless it is a policy a network can copy from its episodes (``drrl.training.cloning``), a reference for
+what the task needs, a check that the task can be done, and the source of the starts from demonstrations
 (``drrl.envs.baxter.stack_env``). It builds the stack of two in about 6 s and of three in about 10
 (tests/test_stacking.py, benchmarks/stacking_scripted.py).
 """

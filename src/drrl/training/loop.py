@@ -4,8 +4,8 @@ A search asks for candidates and is told their returns; it never knows whether t
 or from a learned model. ``run_generation`` is that ask → evaluate on a backend → tell, and a ``World``
 says what one step of the loop does with it:
 
-* model-free (``drrl.model_free``): one generation on the real environment;
-* model-based (``drrl.model_based``): collect real episodes, fit the world model, then generations inside it.
+* model-free (``drrl.training.model_free``): one generation on the real environment;
+* model-based (``drrl.training.model_based``): collect real episodes, fit the world model, then generations inside it.
 
 ``run`` is the loop around any world: after each step it measures the centre policy on real episodes when due
 (counted apart, never as training), keeps the best measured centre, appends a metrics row, and hands the row and,
@@ -138,7 +138,7 @@ class World(ABC, Generic[L]):
 
     def measured_on(self, env: VectorEnv) -> VectorEnv:
         """The env the loop measures the centre on, made of the real measuring ``env``: ``env`` itself, unless the
-        world's policies read something else of it (the latent of frames, ``drrl.model_based``)."""
+        world's policies read something else of it (the latent of frames, ``drrl.training.model_based``)."""
         return env
 
     def checkpoint_due(self, iteration: int) -> bool:
@@ -176,8 +176,8 @@ class Setup(Generic[L]):
 
 
 class Subscriber:
-    """Told what the loop does (the run folder, the progress bar, TensorBoard: drrl.subscribers); each method does
-    nothing here, a subscriber overrides those it needs."""
+    """Told what the loop does (the run folder, the progress bar, TensorBoard: drrl.training.subscribers); each method
+    does nothing here, a subscriber overrides those it needs."""
 
     def started(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
         """Before the first step (``counters.iteration`` is 0 for a new run), with the state at the start."""

@@ -1,6 +1,6 @@
 """Model-based PGPE: the search pointed at a learned world model, with a data loop around it (thesis 2.3, 5.1).
 
-One step of the loop (``drrl.loop.run``) is one iteration:
+One step of the loop (``drrl.training.loop.run``) is one iteration:
     1. collect real episodes with the current centre policy μ and exploring candidates μ ± ε from the search;
     2. fit the world model(s) to all real episodes so far (``drrl.models.trainer``; with ``mirror_episodes``, to
        their mirror images too, where the task declares its reflection symmetry; later fits start from the previous
@@ -8,9 +8,9 @@ One step of the loop (``drrl.loop.run``) is one iteration:
        jumps to ``LOSS_JUMP`` times the last one is done again from new weights, the better of the two kept);
     3. run the search inside the model (an ``ImaginedEnv``, made by every backend worker from an ``ImaginedWorld``),
        from real start states (and their mirror images, with ``mirror_episodes``), for at most
-       ``model_based.generations_per_iteration`` generations of ``drrl.loop.run_generation``, the model-free generation,
-       stopping early once the candidates' mean imagined return stops improving (a generation whose candidates all
-       earn the same imagined return widens σ instead, ``drrl.search.pgpe``);
+       ``model_based.generations_per_iteration`` generations of ``drrl.training.loop.run_generation``, the model-free
+       generation, stopping early once the candidates' mean imagined return stops improving (a generation whose
+       candidates all earn the same imagined return widens σ instead, ``drrl.search.pgpe``);
 then the loop measures μ on fresh real episodes (``eval_episodes``), counted as evaluation, never as training.
 Iterations repeat until the budget of real training episodes is spent. Real steps and episodes are counted exactly
 (by ``drrl.rollout.evaluate``); imagined steps and episodes are counted apart. Every iteration is checkpointed with
@@ -41,7 +41,6 @@ from gymnasium.vector import VectorEnv
 
 from drrl.envs.batch import RegisteredEnv, is_frames
 from drrl.envs.registry import EnvEntry
-from drrl.loop import Counters, Setup, World, run_generation
 from drrl.models.base import LearnedModel, load_weights, weights
 from drrl.models.data import Episode, EpisodeBuffer, EpisodeRecorder, action_size
 from drrl.models.frames import Encoding, FrameAutoencoder, fit_autoencoder
@@ -56,6 +55,7 @@ from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload, evaluat
 from drrl.search.base import Search
 from drrl.settings import ModelBasedSettings, TrainConfig
 from drrl.streams import Stream, derive_seed, imagined_seed
+from drrl.training.loop import Counters, Setup, World, run_generation
 
 
 class ModelBased(World[Search]):
@@ -104,7 +104,7 @@ class ModelBased(World[Search]):
         self.frames = EpisodeBuffer()  # the real episodes as frames, where the env observes frames
         observation_size = self.autoencoder.features if self.autoencoder else int(np.prod(seen.shape or ()))
         self.model = build_model(settings, observation_size, eval_env.single_action_space, config.seed, config.device)
-        if start_model is not None:  # another run's model to fine-tune (``drrl.train.transferred``)
+        if start_model is not None:  # another run's model to fine-tune (``drrl.training.train.transferred``)
             load_weights(self.model, start_model)
         self.real_horizon = config.max_steps or episode_horizon(entry.env_id, eval_env)
         self.horizon = min(self.real_horizon, settings.imagined_horizon or self.real_horizon)  # the search's

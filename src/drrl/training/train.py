@@ -1,4 +1,4 @@
-"""Training runs: build a run's pieces from its config, then run the one loop (``drrl.loop``) in its world.
+"""Training runs: build a run's pieces from its config, then run the one loop (``drrl.training.loop``) in its world.
 
 ``config.model_based`` unset: model-free training (``ModelFree``), every generation on the
 real environment. Set: model-based training (``ModelBased``), generations inside a world
@@ -19,22 +19,8 @@ import torch
 from gymnasium import spaces
 from gymnasium.vector import VectorEnv
 
-from drrl.action_space import ActionSpace
-from drrl.cloning import check_clonable, cloned
 from drrl.envs.batch import ActionMap, RegisteredEnv, choose_engine, is_frames, make_batch_env, observation_size
 from drrl.envs.registry import EnvEntry, is_own, lookup
-from drrl.loop import (
-    Counters,
-    Learner,
-    Setup,
-    Subscriber,
-    World,
-    check_checkpoint,
-    restore,
-    run,
-)
-from drrl.model_based import ModelBased, build_model, frame_autoencoder, reading
-from drrl.model_free import ModelFree
 from drrl.models.base import load_weights
 from drrl.policies import Policy, make_policy
 from drrl.policy_gradient import make_policy_gradient
@@ -53,7 +39,21 @@ from drrl.settings import (
     TrainConfig,
 )
 from drrl.streams import Stream, derive_seed
-from drrl.subscribers import ModelGuard, ProgressBar, RunFolderWriter, TensorBoardLogger
+from drrl.training.action_space import ActionSpace
+from drrl.training.cloning import check_clonable, cloned
+from drrl.training.loop import (
+    Counters,
+    Learner,
+    Setup,
+    Subscriber,
+    World,
+    check_checkpoint,
+    restore,
+    run,
+)
+from drrl.training.model_based import ModelBased, build_model, frame_autoencoder, reading
+from drrl.training.model_free import ModelFree
+from drrl.training.subscribers import ModelGuard, ProgressBar, RunFolderWriter, TensorBoardLogger
 
 
 def build_policy(config: TrainConfig, env) -> Policy:
@@ -294,8 +294,8 @@ def transferred(config: TrainConfig, policy: Policy, spaces_here: SpacePair) -> 
 
 
 def demonstrated_start(config: TrainConfig, entry: EnvEntry, policy: Policy, progress: bool = False) -> Transfer:
-    """The policy cloned from ``config.demonstrations`` real episodes of the env's demonstrator (``drrl.cloning``),
-    and the real episodes and steps they took."""
+    """The policy cloned from ``config.demonstrations`` real episodes of the env's demonstrator
+    (``drrl.training.cloning``), and the real episodes and steps they took."""
     assert entry.demonstrator is not None  # check_clonable
     demonstrations = config.world.start
     assert isinstance(demonstrations, Demonstrations)

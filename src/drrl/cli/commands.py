@@ -10,14 +10,12 @@ import click
 from pydantic import ValidationError
 
 from drrl import __version__
-from drrl.cli_model_based import compare_command
-from drrl.cli_params import INTEGER
-from drrl.cli_settings import FLAGS, check_model_options, given_settings, settings_options, with_file
-from drrl.cli_settings import show_settings as show_settings_of
+from drrl.cli.compare import compare_command
+from drrl.cli.params import INTEGER
+from drrl.cli.settings import FLAGS, check_model_options, given_settings, settings_options, with_file
+from drrl.cli.settings import show_settings as show_settings_of
 from drrl.envs.batch import make_batch_env
 from drrl.envs.registry import aliases, lookup
-from drrl.loop import Counters, Setup, measure, one_thread, run, solved
-from drrl.model_based import ModelDiverged
 from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig, describe_errors, load_config_file
@@ -25,7 +23,9 @@ from drrl.settings.flat import flattened
 from drrl.settings.presets import suggested as suggested_settings
 from drrl.settings.presets import task_preset, task_settings
 from drrl.streams import Stream, derive_seed
-from drrl.train import (
+from drrl.training.loop import Counters, Setup, measure, one_thread, run, solved
+from drrl.training.model_based import ModelDiverged
+from drrl.training.train import (
     as_read,
     build_policy,
     check_same_spaces,

@@ -1,6 +1,6 @@
 """Model-free training by action-space policy gradients (thesis 2.1.4, 2.2.2): the methods PGPE is set against.
 
-One step of the loop (``drrl.loop.run``) is one update: run the stochastic policy around θ for ``popsize`` ×
+One step of the loop (``drrl.training.loop.run``) is one update: run the stochastic policy around θ for ``popsize`` ×
 ``episodes_per_candidate`` real episodes at once, every action drawn (``drrl.policy_gradient.episodes``), then step θ
 and the actions' σ along the method's gradient (REINFORCE with a baseline, or eNAC). Everything else is the
 model-free run's (``RealWorld``): real steps and episodes counted exactly by ``drrl.rollout.evaluate``, θ measured
@@ -16,14 +16,14 @@ from __future__ import annotations
 
 import dataclasses
 
-from drrl.loop import Counters, Setup
-from drrl.model_free import RealWorld, counted
 from drrl.policies import Policy
 from drrl.policy_gradient import PolicyGradient, collect
 from drrl.rollout import Workload
 from drrl.rollout.local import LocalBackend
 from drrl.settings import TrainConfig
 from drrl.streams import Stream, derive_seed
+from drrl.training.loop import Counters, Setup
+from drrl.training.model_free import RealWorld, counted
 
 
 class ActionSpace(RealWorld[PolicyGradient]):

@@ -13,7 +13,7 @@ from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 from pydantic_core import PydanticUndefined
 
-from drrl.cli_params import INTEGER
+from drrl.cli.params import INTEGER
 from drrl.settings import TrainConfig
 from drrl.settings.flat import FLAT, SEARCH_DESCRIPTION, TABLE, FlatSetting, flattened, layers_for, merged
 from drrl.settings.parts import PARAMETER_SEARCHES, POLICY_GRADIENTS

@@ -1,6 +1,6 @@
 """Model-free training: the search on the real environment (thesis 2.4, Algorithm 2).
 
-One step of the loop (``drrl.loop.run``) is one generation: ask for P candidates, run them for E real
+One step of the loop (``drrl.training.loop.run``) is one generation: ask for P candidates, run them for E real
 episodes each in one batched rollout on the backend, tell the search their mean returns. The loop then measures
 the centre policy μ on separate episodes, counted apart: every ``eval_every`` generations as long as measuring
 takes at most ``eval_share`` of the run's env steps (a quarter by default: 50 measuring episodes after every
@@ -35,13 +35,13 @@ from collections.abc import Callable
 import torch
 
 from drrl.envs.batch import RegisteredEnv
-from drrl.loop import Counters, L, Setup, World, attempt_ended, run_generation
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload
 from drrl.rollout.moments import Moments
 from drrl.search.base import Search
 from drrl.settings import ModelBasedSettings, ModelFreeSettings, TrainConfig
 from drrl.streams import Stream, derive_seed
+from drrl.training.loop import Counters, L, Setup, World, attempt_ended, run_generation
 
 
 class RealWorld(World[L]):

@@ -1,11 +1,11 @@
-"""What the training loop tells the outside: subscribers of ``drrl.loop.run``, attached, not wired in.
+"""What the training loop tells the outside: subscribers of ``drrl.training.loop.run``, attached, not wired in.
 
 * ``RunFolderWriter``: config.json, a metrics.csv row per step, checkpoints, the learning curve at the end;
 * ``ProgressBar``: real episodes spent, with the step's returns (tqdm);
 * ``TensorBoardLogger``: every metric against real training episodes (``drrl[tensorboard]``);
 * ``ModelGuard``: a warning when the world model promises the centre far more than reality gives it.
 
-A subscriber overrides any of ``drrl.loop.Subscriber``'s ``started``, ``row``, ``checkpoint`` and ``ended``;
+A subscriber overrides any of ``drrl.training.loop.Subscriber``'s ``started``, ``row``, ``checkpoint`` and ``ended``;
 a benchmark attaches its own probe the same way.
 """
 
@@ -17,9 +17,9 @@ from typing import Any
 
 from tqdm import tqdm
 
-from drrl.loop import Counters, Setup, Subscriber
 from drrl.runs import RunFolder
 from drrl.settings import ModelBasedSettings
+from drrl.training.loop import Counters, Setup, Subscriber
 
 INSTALL_TENSORBOARD = '--tensorboard needs TensorBoard, which is not installed: pip install "drrl[tensorboard]"'
 
