@@ -327,6 +327,15 @@ def _copy(value):
     return value.clone() if isinstance(value, torch.Tensor) else value
 
 
+def check_whole_draws(sampler: str, popsize: int) -> None:
+    """Refuse a ``popsize`` that is not a whole number of ``sampler``'s draws (the one rule, for the search and for a
+    run's settings alike)."""
+    if sampler == "symmetric" and popsize % 2:
+        raise ValueError(f"symmetric sampling needs an even popsize (pairs μ ± ε), got {popsize}")
+    if sampler == "supersymmetric" and popsize % 4:
+        raise ValueError(f"supersymmetric sampling needs a popsize divisible by 4 (μ ± ε, μ ± ε*), got {popsize}")
+
+
 def _check_settings(
     center,
     popsize,
@@ -357,10 +366,7 @@ def _check_settings(
         raise ValueError("center must hold finite real numbers")
     if isinstance(popsize, bool) or not isinstance(popsize, Integral) or popsize < 2:
         raise ValueError(f"popsize must be an integer >= 2, got {popsize!r}")
-    per_draw = CANDIDATES_PER_DRAW[sampler]
-    if popsize % per_draw:
-        what = "pairs μ ± ε" if sampler == "symmetric" else "quadruples μ ± ε, μ ± ε*"
-        raise ValueError(f"{sampler} sampling draws {what}, so popsize must be a multiple of {per_draw}; got {popsize}")
+    check_whole_draws(sampler, int(popsize))
     for name, value in (("sigma_init", sigma_init), ("center_lr", center_lr), ("sigma_lr", sigma_lr)):
         if not (isinstance(value, Real) and math.isfinite(value) and float(value) > 0):
             raise ValueError(f"{name} must be a positive finite number, got {value!r}")

@@ -27,7 +27,7 @@ from drrl.models.kinds import MODEL_KINDS
 from drrl.models.recurrent import FUTURE_INPUTS
 from drrl.models.recurrent import MODEL_KINDS as RECURRENT_KINDS
 from drrl.policies import ACCEPTED_FORMS
-from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS
+from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS, check_whole_draws
 
 REWARD_MODES = ("auto", "known", "learned")
 VALIDATE_EVERY = 100  # gradient steps between two measurements of a fit's held-out loss
@@ -107,15 +107,12 @@ class PGPESettings(Stepped, Sampled):
     )
     sigma_lr: float = Field(0.01, gt=0, le=1e6, description="learning rate of σ")
     fitness_shaping: str = choice("none", FITNESS_SHAPINGS, "fitness shaping")
-    baseline_decay: float = Field(0.1, ge=0, lt=1, description="decay of the reward baseline b (2.33)")
+    baseline_decay: float = Field(0.1, ge=0, le=1, description="the old baseline's weight in 2.33")
     max_sigma_change: float = Field(0.2, gt=0, lt=1, description="the most |Δσ/σ| of one step")
 
     @model_validator(mode="after")
     def _whole_draws(self) -> PGPESettings:
-        if self.sampler == "symmetric" and self.popsize % 2:
-            raise ValueError(f"symmetric sampling needs an even popsize (pairs μ ± ε), got {self.popsize}")
-        if self.sampler == "supersymmetric" and self.popsize % 4:
-            raise ValueError(f"supersymmetric sampling needs a popsize divisible by 4, got {self.popsize}")
+        check_whole_draws(self.sampler, self.popsize)
         return self
 
 
