@@ -2,9 +2,10 @@
 
 Trains each reference run (below) into a fresh folder and records, per run, the SHA-256 of metrics.csv without its
 clock columns (wall_time, fit_time, search_time: seconds, which differ from run to run) and of every checkpoint
-tensor's bytes, and the checkpoint's other state (counters, best return, kind, unit, env id) as JSON without its wall
-time and its record of the settings, whose form may change while the run stays the same. ``--check FILE`` compares
-against a file an earlier ``--record FILE`` wrote and lists every difference; exit status 1 if there is one.
+tensor's bytes, and of each entry of the checkpoint's other state (counters, best return, kind, the search's and the
+world's plain values, by their dotted path) as JSON, without its wall time and its record of the settings, whose form
+may change while the run stays the same. ``--check FILE`` compares against a file an earlier ``--record FILE`` wrote
+and lists every difference; exit status 1 if there is one.
 
     python benchmarks/same_runs.py --record before.json
     python benchmarks/same_runs.py --check before.json
@@ -55,8 +56,21 @@ def fingerprint(folder: Path) -> dict:
         "metrics": hashlib.sha256(text.getvalue().encode()).hexdigest(),
         "rows": len(rows),
         "tensors": tensors,
-        "state": hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest(),
+        "state": {path: hashlib.sha256(leaf.encode()).hexdigest() for path, leaf in leaves(kept)},
     }
+
+
+def leaves(items: list, prefix: str = "") -> list[tuple[str, str]]:
+    """The checkpoint state's entries by their dotted path (``world.model``), each leaf as JSON."""
+    found = []
+    for key, value in items:
+        path = f"{prefix}{key}"
+        nested = value.get("items") if isinstance(value, dict) else None
+        if isinstance(nested, list) and all(isinstance(item, list) and len(item) == 2 for item in nested):
+            found += leaves(nested, path + ".")
+        else:
+            found.append((path, json.dumps(value, sort_keys=True)))
+    return found
 
 
 def train(name: str, arguments: list[str], root: Path) -> dict:
@@ -82,9 +96,19 @@ def differences(before: dict, after: dict) -> list[str]:
         if old is None or new is None:
             found.append(f"{name}: only {'after' if old is None else 'before'}")
             continue
-        for part in ("metrics", "rows", "state"):
+        for part in ("metrics", "rows"):
             if old[part] != new[part]:
                 found.append(f"{name}: {part} differs")
+        for side, keys in (
+            ("before", old["state"].keys() - new["state"]),
+            ("after", new["state"].keys() - old["state"]),
+        ):
+            found += [f"{name}: state {key} only {side}" for key in sorted(keys)]
+        found += [
+            f"{name}: state {key} differs"
+            for key in sorted(old["state"].keys() & new["state"].keys())
+            if old["state"][key] != new["state"][key]
+        ]
         renamed = set(old["tensors"]) ^ set(new["tensors"])
         if renamed:
             found.append(f"{name}: tensors only on one side: {sorted(renamed)}")
