@@ -19,8 +19,7 @@ from drrl.settings import TrainConfig, describe_errors, load_config_file
         ({"sampler": "supersymmetric", "popsize": 10}, "supersymmetric sampling needs a popsize divisible by 4"),
         (
             {"popsize": "eight"},
-            "popsize: Input should be a valid integer, unable to parse string as an integer (got 'eight') — popsize: "
-            "candidates per generation",
+            "popsize: must be a number, not text (got 'eight') — popsize: candidates per generation",
         ),
         ({"search": "cmaes", "sampler": "single"}, "a setting of the pgpe search, not of cmaes"),
         ({"model_based": {}, "observation_norm": True}, "a setting of model-free runs, not of model-based ones"),

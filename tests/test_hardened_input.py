@@ -29,7 +29,7 @@ def train(*args):
         (
             "type.toml",
             'popsize = "eight"\n',
-            "popsize: Input should be a valid integer, unable to parse string as an integer (got 'eight')",
+            "popsize: must be a number, not text (got 'eight')",
         ),
         ("range.toml", "eval_every = 0\n", "eval_every: Input should be greater than or equal to 1 (got 0)"),
         ("infinite.toml", "sigma_init = inf\n", "sigma_init: Input should be a finite number (got inf)"),
@@ -154,7 +154,7 @@ DAMAGE = {
     ),
     "a negative counter": (
         lambda f: rewrite_checkpoint(f, lambda s: s.update(iteration=-2)),
-        "checkpoint's iteration is -2; it must be a whole number >= 0",
+        "checkpoint's iteration is -2; it must be a whole number from 0 to 2**53",
     ),
     "a NaN centre": (
         lambda f: rewrite_checkpoint(f, lambda s: s["center"].fill_(float("nan"))),
@@ -190,10 +190,10 @@ DAMAGE = {
         lambda f: edit_config(f, popsize=0),
         "popsize: Input should be greater than or equal to 2 (got 0)",
     ),
-    "no metrics": (lambda f: (f.path / METRICS).unlink(), "metrics.csv is unreadable"),
+    "no metrics": (lambda f: (f.path / METRICS).unlink(), "metrics.csv is missing; it needs one row per generation"),
     "missing metrics rows": (
         lambda f: (f.path / METRICS).write_text("".join((f.path / METRICS).read_text().splitlines(keepends=True)[:2])),
-        "holds 1 whole rows before the checkpoint's generation 3; it needs one per generation",
+        "metrics.csv is not the one its checkpoint recorded: its first 3 rows were edited, cut or come from another",
     ),
 }
 

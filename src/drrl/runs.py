@@ -9,12 +9,16 @@ keeps the previous version.
 from __future__ import annotations
 
 import csv
+import errno
 import hashlib
 import io
 import json
 import os
+import re
 import textwrap
 import weakref
+from contextlib import contextmanager
+from dataclasses import dataclass
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -45,6 +49,7 @@ class RunFolder:
     def __init__(self, path: Path | str):
         self.path = Path(path)
         self._hold: weakref.finalize | None = None
+        self._rows = Rows(0, hashlib.sha256())  # the metrics rows this process wrote or kept
 
     @classmethod
     def create(cls, path: Path | str) -> RunFolder:
@@ -105,48 +110,84 @@ class RunFolder:
             raise ValueError(f"{file} is not a valid drrl config:\n{describe_errors(error)}") from None
 
     def append_metrics(self, row: dict[str, Any]) -> None:
+        """One metrics row, appended; its bytes are added to the digest the next checkpoint records (``_rows``)."""
         file = self.path / METRICS
-        new = not file.exists()
-        with file.open("a", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(row))
-            if new:
-                writer.writeheader()
-            writer.writerow(row)
+        text = io.StringIO()
+        writer = csv.DictWriter(text, fieldnames=list(row))
+        if self._rows.count == 0 and not file.exists():
+            writer.writeheader()
+        writer.writerow(row)
+        data = text.getvalue().encode()
+        with writing(file), file.open("ab") as handle:
+            handle.write(data)
+        self._rows = self._rows.then(data)
 
     def read_metrics(self) -> list[dict[str, float]]:
-        with (self.path / METRICS).open(newline="") as handle:
-            return [{key: float(value) for key, value in row.items()} for row in csv.DictReader(handle)]
-
-    def truncate_metrics(self, generations: int) -> list[dict[str, float]]:
-        """Keep the rows of generations 1..``generations`` (drop those written after the last checkpoint)."""
+        """metrics.csv's rows, as numbers."""
         file = self.path / METRICS
-        if generations == 0:
-            file.unlink(missing_ok=True)
-            return []
         try:
-            with file.open(newline="") as handle:
-                header, *rows = list(csv.reader(handle))
-            kept = rows[:generations]
-            whole = [row for row in kept if len(row) == len(header)]
-            numbers = [[float(value) for value in row] for row in whole]
-        except (OSError, ValueError, csv.Error) as error:
-            raise ValueError(f"{file} is unreadable, so the run cannot be resumed exactly: {error}") from None
-        if [int(row[0]) for row in numbers] != list(range(1, generations + 1)):
+            data = file.read_bytes()
+        except OSError as error:
+            raise ValueError(f"cannot read {file}: {error.strerror}") from None
+        return parse_metrics(file, data)
+
+    def truncate_metrics(self, generations: int, record: dict | None = None) -> list[dict[str, float]]:
+        """Keep the rows of generations 1..``generations``, those the checkpoint recorded (``record``: their bytes'
+        length and SHA-256), and drop those written after it. Rows that are not the ones recorded (edited, cut, another
+        run's) are refused: a resumed run would write them into its own record."""
+        file = self.path / METRICS
+        if generations and not file.is_file():
+            raise ValueError(f"{file} is missing; it needs one row per generation to resume exactly")
+        try:
+            data = file.read_bytes() if generations else b""
+        except OSError as error:
+            raise ValueError(f"cannot read {file}: {error.strerror}") from None
+        if record is None:  # an older drrl's checkpoint: the rows are checked for their order only
+            kept = b"".join(data.splitlines(keepends=True)[: generations + 1]) if generations else b""
+        else:
+            kept = data[: record["bytes"]]
+            if record["rows"] != generations or hashlib.sha256(kept).hexdigest() != record["sha256"]:
+                raise ValueError(
+                    f"{file} is not the one its checkpoint recorded: its first {generations} rows were edited, cut "
+                    f"or come from another run; restore it, or train a new run"
+                )
+        rows = parse_metrics(file, kept)
+        if len(rows) != generations:
             raise ValueError(
-                f"{file} holds {len(whole)} whole rows before the checkpoint's generation {generations}; "
-                f"it needs one per generation to resume exactly"
+                f"{file} holds {len(rows)} rows before the checkpoint's generation {generations}; it needs one per "
+                f"generation to resume exactly"
             )
-        text = io.StringIO()
-        csv.writer(text).writerows([header, *kept])
-        _write_atomically(file, text.getvalue())
-        return [dict(zip(header, row, strict=True)) for row in numbers]
+        if kept:
+            _write_atomically(file, kept)
+        else:
+            file.unlink(missing_ok=True)
+        self._rows = Rows(generations, hashlib.sha256(kept), len(kept))
+        return rows
 
     def save_checkpoint(self, state: dict[str, Any]) -> None:
+        """The state, with the record of the metrics rows it has seen (``state["iteration"]`` of them), so that the
+        folder is resumed only with those rows."""
+        if "iteration" in state:
+            state = state | {"metrics": self._metrics_record(int(state["iteration"]))}
         tensors: dict[str, torch.Tensor] = {}
         tree = json.dumps(_encode(state, "", tensors))
         temporary = self.path / (CHECKPOINT + ".tmp")
-        save_file(tensors, temporary, metadata={"state": tree, "sha256": _digest(tree, tensors)})
+        with writing(temporary):
+            save_file(tensors, temporary, metadata={"state": tree, "sha256": _digest(tree, tensors)})
         os.replace(temporary, self.path / CHECKPOINT)
+
+    def _metrics_record(self, rows: int) -> dict | None:
+        """The length and SHA-256 of metrics.csv's header and first ``rows`` rows; None where it has fewer."""
+        for known in (self._rows, self._rows.before):
+            if known is not None and known.count == rows:
+                return known.record()
+        file = self.path / METRICS
+        data = file.read_bytes() if file.exists() else b""
+        lines = data.splitlines(keepends=True)
+        if rows and len(lines) <= rows:
+            return None
+        kept = b"".join(lines[: rows + 1]) if rows else b""
+        return Rows(rows, hashlib.sha256(kept), len(kept)).record()
 
     def load_checkpoint(self) -> dict[str, Any]:
         file = self.path / CHECKPOINT
@@ -201,6 +242,68 @@ class RunFolder:
         figure.savefig(out, dpi=120)
         plt.close(figure)
         return out
+
+
+@dataclass(frozen=True)
+class Rows:
+    """The metrics rows written so far: how many, the SHA-256 and length of their bytes with the header's, and the
+    same before the last row (a checkpoint taken on an interrupt records the last whole step, one row back)."""
+
+    count: int
+    digest: Any  # a hashlib sha256 object
+    size: int = 0
+    before: Rows | None = None
+
+    def then(self, data: bytes) -> Rows:
+        digest = self.digest.copy()
+        digest.update(data)
+        return Rows(self.count + 1, digest, self.size + len(data), Rows(self.count, self.digest, self.size))
+
+    def record(self) -> dict:
+        return {"rows": self.count, "bytes": self.size, "sha256": self.digest.hexdigest()}
+
+
+def parse_metrics(file: Path, data: bytes) -> list[dict[str, float]]:
+    """metrics.csv's bytes as rows of numbers; a row or value that is not one raises ValueError naming it."""
+    try:
+        header, *rows = list(csv.reader(io.StringIO(data.decode())))
+    except ValueError:  # no header (an empty file), or bytes that are not UTF-8
+        return [] if not data else _bad_metrics(file, "its bytes are not a CSV table of numbers")
+    except csv.Error as error:
+        return _bad_metrics(file, str(error))
+    parsed = []
+    for number, row in enumerate(rows, start=2):
+        if len(row) != len(header):
+            return _bad_metrics(file, f"line {number} has {len(row)} values for {len(header)} columns")
+        try:
+            values = [float(value) for value in row]
+        except ValueError:
+            return _bad_metrics(file, f"line {number} holds a value that is not a number")
+        if not (values and values[0] == number - 1):
+            return _bad_metrics(file, f"line {number}'s {header[0]} is {row[0]!r}, not {number - 1}")
+        parsed.append(dict(zip(header, values, strict=True)))
+    return parsed
+
+
+def _bad_metrics(file: Path, why: str):
+    raise ValueError(f"{file} is damaged ({why}), so the run cannot be resumed or plotted exactly")
+
+
+@contextmanager
+def writing(file: Path):
+    """Turn what the operating system refuses while ``file`` is written (a full disk, a file too large, a read-only
+    folder) into an OSError naming the file, which callers report in one line; a partly written temporary file is
+    removed, so the last whole one stays."""
+    try:
+        yield
+    except (OSError, SafetensorError) as error:
+        if file.name.endswith(".tmp"):
+            file.unlink(missing_ok=True)
+        if isinstance(error, OSError):
+            raise
+        code = re.search(r"code: (\d+)", str(error))
+        number = int(code.group(1)) if code else errno.EIO
+        raise OSError(number, os.strerror(number), str(file)) from None
 
 
 def learning_curve(
@@ -360,9 +463,10 @@ def _differences(now: dict, then: dict, prefix: str = "") -> list[tuple[str, Any
     return found
 
 
-def _write_atomically(file: Path, text: str) -> None:
+def _write_atomically(file: Path, content: str | bytes) -> None:
     temporary = file.with_name(file.name + ".tmp")
-    temporary.write_text(text)
+    with writing(temporary):
+        temporary.write_bytes(content.encode() if isinstance(content, str) else content)
     os.replace(temporary, file)
 
 

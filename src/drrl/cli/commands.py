@@ -11,7 +11,7 @@ from pydantic import ValidationError
 
 from drrl import __version__
 from drrl.cli.compare import compare_command
-from drrl.cli.params import INTEGER
+from drrl.cli.params import COUNT, EPISODES, SEED, AsciiInt
 from drrl.cli.settings import FLAGS, check_model_options, given_settings, settings_options, with_file
 from drrl.cli.settings import show_settings as show_settings_of
 from drrl.envs.batch import make_batch_env
@@ -88,7 +88,7 @@ def main(ctx: click.Context, debug: bool) -> None:
     help='where candidates are evaluated: this process, or Ray actors (pip install "drrl[ray]")',
 )
 @click.option("--address", help="Ray cluster to join, e.g. 10.0.0.1:6379  [default: start a local Ray]")
-@click.option("--workers", type=click.IntRange(min=1), help="Ray actors  [default: one per CPU of the cluster]")
+@click.option("--workers", type=COUNT, help="Ray actors  [default: one per CPU of the cluster]")
 @click.option(
     "--tensorboard",
     is_flag=True,
@@ -290,8 +290,8 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
 
 @main.command("eval")
 @click.argument("run_path", metavar="RUN", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True)
-@click.option("--seed", type=INTEGER, default=0, show_default=True)
+@click.option("--episodes", type=EPISODES, default=50, show_default=True, help="fresh episodes to measure")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="the first episode's reset seed")
 @click.option("--final", is_flag=True, help="the last centre policy instead of the best measured one")
 @click.option(
     "--env",
@@ -307,7 +307,7 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
     run = RunFolder(run_path)
     try:
         config, checkpoint = open_run(run)
-        entry = lookup(env_name or checkpoint["env_id"])
+        entry = lookup(checkpoint["env_id"] if env_name is None else env_name)
         env = make_batch_env(entry.env_id, episodes, config.engine if env_name is None else "auto")
         if env_name is not None:
             trained_on = make_batch_env(checkpoint["env_id"], 1, config.engine)
@@ -352,10 +352,10 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
     show_default=True,
     help="video file: .gif, or .mp4 (needs drrl[render])",
 )
-@click.option("--seed", type=INTEGER, default=0, show_default=True, help="the episode's reset seed")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="the episode's reset seed")
 @click.option("--final", is_flag=True, help="the last centre policy instead of the best measured one")
-@click.option("--fps", type=click.IntRange(min=1), default=25, show_default=True, help="video frames per second")
-@click.option("--max-steps", type=click.IntRange(min=1), help="stop the episode after this many steps")
+@click.option("--fps", type=AsciiInt(1, 1000), default=25, show_default=True, help="video frames per second")
+@click.option("--max-steps", type=COUNT, help="stop the episode after this many steps")
 @click.option("--shadows", is_flag=True, help="Baxter: MuJoCo's shadows and reflections (about 5× slower)")
 @click.option("--env", "env_name", help="record on this env instead, of the same spaces (e.g. a stand-in robot)")
 def render_command(

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 from pydantic import ValidationError
 
+from drrl.cli.params import COUNT
 from drrl.compare import (
     DEFAULT_METHODS,
     METHODS,
@@ -37,16 +38,16 @@ def observes_frames(env: str) -> bool:
 
 @click.command("compare")
 @click.option("--env", default="cartpole", show_default=True, help="Environment to compare the methods on.")
-@click.option("--seeds", type=click.IntRange(min=1), default=3, show_default=True, help="seeds per method")
+@click.option("--seeds", type=COUNT, default=3, show_default=True, help="seeds per method")
 @click.option(
     "--budget",
-    type=click.IntRange(min=1),
+    type=COUNT,
     help="real training episodes of each model-free run (PGPE, REINFORCE, eNAC, PPO)  "
     f"[default: {COMPARE_BUDGET}, or the env's own budget where it has one, one attempt's where its runs restart]",
 )
 @click.option(
     "--model-based-budget",
-    type=click.IntRange(min=1),
+    type=COUNT,
     help="real training episodes of each model-based run  "
     "[default: a model-based run's on the env, as drrl train --model-based spends]",
 )

@@ -45,16 +45,21 @@ def _param_type(setting: FlatSetting):
         return click.Choice([str(choice) for choice in choices])
     if setting.name == "start_from":
         return click.Path(exists=True, file_okay=False)
-    kinds = {kind for kind in typing.get_args(field.annotation) or (field.annotation,) if kind is not type(None)}
+    kinds = {_plain(kind) for kind in typing.get_args(field.annotation) or (field.annotation,)} - {type(None)}
     if kinds == {bool}:
         return click.BOOL
     if kinds == {int}:
         return INTEGER
     if kinds == {float}:
         return float
-    if typing.get_origin(field.annotation) is tuple or field.annotation is tuple[int, ...]:
+    if typing.get_origin(field.annotation) is tuple:
         return WIDTHS
     return str
+
+
+def _plain(kind):
+    """A type without its pydantic validators: ``int`` for ``Annotated[int, ...]``."""
+    return typing.get_args(kind)[0] if typing.get_origin(kind) is typing.Annotated else kind
 
 
 class Widths(click.ParamType):

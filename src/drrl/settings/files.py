@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import difflib
 import json
+import os
+import stat
 import tomllib
 from pathlib import Path
 
@@ -15,24 +17,20 @@ MAX_CONFIG_BYTES = 1024 * 1024
 
 
 def load_config_file(path: Path) -> dict:
-    """Read a TOML or JSON config file into a plain dict (validated later, with command-line overrides)."""
-    kind = "JSON" if path.suffix == ".json" else "TOML"
+    """Read a TOML or JSON config file (JSON by a ``.json`` suffix in any case) into a plain dict, validated later
+    with the command-line overrides. Only a regular file is read, and at most ``MAX_CONFIG_BYTES`` of it: a FIFO or
+    a device (/dev/zero) would block or never end."""
+    kind = "JSON" if path.suffix.lower() == ".json" else "TOML"
+    text = read_text(path, f"config file {path}", MAX_CONFIG_BYTES, kind)
     try:
-        if path.stat().st_size > MAX_CONFIG_BYTES:
-            raise ValueError(
-                f"config file {path} is over {MAX_CONFIG_BYTES // 1024} KiB; a config holds a few settings"
-            )
-        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark is allowed
-    except OSError as error:
-        raise ValueError(f"cannot read config file {path}: {error.strerror}") from None
-    except UnicodeDecodeError as error:
-        raise ValueError(f"config file {path} is not {kind} text: byte {error.start} is not UTF-8") from None
-    try:
-        settings = json.loads(text) if kind == "JSON" else tomllib.loads(text)
+        settings = json.loads(text, object_pairs_hook=_once_each) if kind == "JSON" else tomllib.loads(text)
     except (json.JSONDecodeError, tomllib.TOMLDecodeError) as error:
         raise ValueError(f"config file {path} is not valid {kind}: {error}") from None
     except RecursionError:
         raise ValueError(f"config file {path} nests its tables too deeply to be a drrl config") from None
+    except ValueError as error:  # a key twice, or a number of over 4,300 digits (Python's limit)
+        why = str(error) if "twice" in str(error) else "it holds a number too long to be a setting"
+        raise ValueError(f"config file {path} is not a drrl config: {why}") from None
     if not isinstance(settings, dict):
         raise ValueError(
             f"config file {path} must hold an object of settings (name: value), not a {type(settings).__name__}"
@@ -40,13 +38,49 @@ def load_config_file(path: Path) -> dict:
     return settings
 
 
+def read_text(path: Path, what: str, limit: int, kind: str = "text") -> str:
+    """A regular file's UTF-8 text (a byte-order mark allowed) of at most ``limit`` bytes; ValueError naming
+    ``what`` for anything else: a missing file, a folder, a FIFO or device, a larger file, bytes that are not UTF-8."""
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            raise ValueError(f"{what} is not a regular file (a folder, FIFO or device); give a {kind} file")
+        with open(path, "rb") as handle:
+            data = handle.read(limit + 1)
+    except OSError as error:
+        raise ValueError(f"cannot read {what}: {error.strerror}") from None
+    if len(data) > limit:
+        raise ValueError(f"{what} is over {limit // 1024} KiB; a config holds a few settings")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{what} is not {kind} text: byte {error.start} is not UTF-8") from None
+
+
+def _once_each(pairs: list[tuple[str, object]]) -> dict:
+    """A JSON object whose keys are all different (json.loads would keep the last of a key given twice)."""
+    settings: dict = {}
+    for key, value in pairs:
+        if key in settings:
+            raise ValueError(f"{key!r} is given twice")
+        settings[key] = value
+    return settings
+
+
 def describe_errors(error: ValidationError) -> str:
     """One line per invalid setting, by its flat name: what it is, the value given and what is allowed."""
     lines = []
-    for item in error.errors():
+    errors = error.errors()
+    places = [tuple(item["loc"]) for item in errors]
+    for item in errors:
         location = tuple(item["loc"])
+        if any(len(other) > len(location) and other[: len(location)] == location for other in places):
+            continue  # a setting's own error follows from an error in one of its items, shown instead
+        index = next((part for part in location if isinstance(part, int)), None)
+        location = tuple(part for part in location if not isinstance(part, int))
         name = flat_name(location) if location else ""
         message = item["msg"].removeprefix("Value error, ")
+        if index is not None:
+            message = f"item {index + 1}: {message}"
         if item["type"] == "extra_forbidden":
             message = _not_here(name, location)
         elif item["type"] == "union_tag_invalid":

@@ -193,7 +193,19 @@ def nested(flat: dict, legacy: bool = False) -> dict:
             target = target.setdefault(part, {})
         target[path[-1]] = value
     if Demonstrations.__name__ in start and "episodes" not in start[Demonstrations.__name__]:
-        del start[Demonstrations.__name__]  # rounds and noise of no demonstrations
+        if not legacy:  # an older drrl recorded rounds and noise of no demonstrations
+            given_names = ", ".join(name for name in START if name in given and START[name][0] is Demonstrations)
+            raise ValueError(
+                f"{given_names}: settings of a run that starts from demonstrations; give demonstrations (≥ 1) too"
+            )
+        del start[Demonstrations.__name__]
+    if len(start) > 1 and not legacy:  # a start given wins over a preset's other one; two given are refused
+        given_starts = [
+            part for part in (Demonstrations, StartFrom) if any(START[k][0] is part for k in flat if k in START)
+        ]
+        if len(given_starts) > 1:
+            raise ValueError("demonstrations and start_from: a run starts from one of them, not both")
+        start = {given_starts[0].__name__: start[given_starts[0].__name__]} if given_starts else start
     if len(start) > 1:
         world["start"] = {**start[Demonstrations.__name__], **start[StartFrom.__name__]}  # refused: two starts
     elif start:

@@ -19,7 +19,17 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import torch
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from drrl.envs.batch import ENGINES
 from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
@@ -63,6 +73,18 @@ class Part(BaseModel):
         )
 
 
+def _number_only(value):
+    """A number setting takes numbers only: not true/false (TOML's booleans, which pydantic would read as 1 and 0)
+    and not text ("1_0", which Python reads as 10)."""
+    if isinstance(value, (bool, str)):
+        raise ValueError(f"must be a number, not {'true/false' if isinstance(value, bool) else 'text'}")
+    return value
+
+
+Int = Annotated[int, BeforeValidator(_number_only)]
+Float = Annotated[float, BeforeValidator(_number_only)]
+
+
 def _default(part: type[Part]):
     """A part's default: its own defaults, made afresh for every record."""
     return lambda: part.model_validate({})
@@ -74,9 +96,9 @@ def _default(part: type[Part]):
 class Sampled(Part):
     """What every search shares: candidates a generation, their episodes, the initial spread."""
 
-    popsize: int = Field(8, ge=2, le=1_000_000, description="candidates per generation")
-    episodes_per_candidate: int = Field(1, ge=1, le=10_000, description="episodes per candidate")
-    sigma_init: float = Field(
+    popsize: Int = Field(8, ge=2, le=1_000_000, description="candidates per generation")
+    episodes_per_candidate: Int = Field(1, ge=1, le=10_000, description="episodes per candidate")
+    sigma_init: Float = Field(
         1.0, gt=0, le=1e6, description="initial σ of every parameter (reinforce, enac: of every action)"
     )
 
@@ -92,7 +114,7 @@ class Stepped(Part):
     """A search that steps its centre μ by a step rule."""
 
     optimizer: str = choice("clipup", OPTIMIZERS, "step rule for μ")
-    center_lr: float = Field(0.1, gt=0, le=1e6, description="step size of μ (ClipUp's; its max speed is twice it)")
+    center_lr: Float = Field(0.1, gt=0, le=1e6, description="step size of μ (ClipUp's; its max speed is twice it)")
 
 
 class PGPESettings(Stepped, Sampled):
@@ -105,10 +127,10 @@ class PGPESettings(Stepped, Sampled):
         "PGPE's sampler: single candidates (2.28-2.29), symmetric pairs μ ± ε (SyS, 2.31-2.33) or supersymmetric "
         "quadruples",
     )
-    sigma_lr: float = Field(0.01, gt=0, le=1e6, description="learning rate of σ")
+    sigma_lr: Float = Field(0.01, gt=0, le=1e6, description="learning rate of σ")
     fitness_shaping: str = choice("none", FITNESS_SHAPINGS, "fitness shaping")
-    baseline_decay: float = Field(0.1, ge=0, le=1, description="the old baseline's weight in 2.33")
-    max_sigma_change: float = Field(0.2, gt=0, lt=1, description="the most |Δσ/σ| of one step")
+    baseline_decay: Float = Field(0.1, ge=0, le=1, description="the old baseline's weight in 2.33")
+    max_sigma_change: Float = Field(0.2, gt=0, lt=1, description="the most |Δσ/σ| of one step")
 
     @model_validator(mode="after")
     def _whole_draws(self) -> PGPESettings:
@@ -138,19 +160,19 @@ ParameterSearch = Annotated[PGPESettings | CMAESSettings, Field(discriminator="n
 class Demonstrations(Part):
     """The first centre cloned from real episodes of the env's scripted demonstrator (``drrl.training.cloning``)."""
 
-    episodes: int = Field(
+    episodes: Int = Field(
         ge=1,
         le=100_000,
         description="real episodes of the env's scripted demonstrator (the stacking tasks' with end-point actions) "
         "that the first centre is cloned from, counted in the budget",
     )
-    rounds: int = Field(
+    rounds: Int = Field(
         1,
         ge=1,
         le=1000,
         description="rounds the demonstrations are recorded in, each after the first driven by the clone so far",
     )
-    noise: float = Field(0.05, ge=0, le=10, description="std of the noise on the demonstrator's raw actions")
+    noise: Float = Field(0.05, ge=0, le=10, description="std of the noise on the demonstrator's raw actions")
 
     @model_validator(mode="after")
     def _an_episode_a_round(self) -> Demonstrations:
@@ -173,6 +195,19 @@ class StartFrom(Part):
     )
 
 
+def _start_kind(value) -> str:
+    """Which start a model-free run's ``start`` is: another run's (``run`` alone) or demonstrations, so that a bad
+    value is reported against that one start only."""
+    if isinstance(value, dict):
+        return StartFrom.__name__ if "run" in value and "episodes" not in value else Demonstrations.__name__
+    return type(value).__name__
+
+
+ModelFreeStart = Annotated[
+    Annotated[Demonstrations, Tag(Demonstrations.__name__)] | Annotated[StartFrom, Tag(StartFrom.__name__)],
+    Discriminator(_start_kind),
+]
+
 # ---------------------------------------------------------------------------------------------------- worlds
 
 
@@ -191,11 +226,11 @@ class EnvSchedule(Part):
     """
 
     option: str = Field(min_length=1, description="the env's keyword argument, e.g. tolerance")
-    start: float = Field(gt=0, le=1e9, description="the option's value at the start")
-    end: float = Field(gt=0, le=1e9, description="the option's value at the end")
-    share: float = Field(0.5, gt=0, le=1, description="of the real-episode budget over which the option moves")
-    advance_at: float | None = Field(None, description="move a step after a generation whose median return is this")
-    steps: int = Field(10, ge=1, le=10_000, description="steps from start to end, with advance_at")
+    start: Float = Field(gt=0, le=1e9, description="the option's value at the start")
+    end: Float = Field(gt=0, le=1e9, description="the option's value at the end")
+    share: Float = Field(0.5, gt=0, le=1, description="of the real-episode budget over which the option moves")
+    advance_at: Float | None = Field(None, description="move a step after a generation whose median return is this")
+    steps: Int = Field(10, ge=1, le=10_000, description="steps from start to end, with advance_at")
 
     def value(self, progress: float, stage: int = 0) -> float:
         """The option's value once ``progress`` (0 to 1) of the budget is spent, or, with ``advance_at``, once
@@ -207,7 +242,7 @@ class EnvSchedule(Part):
 class Shifted(Part):
     """A world whose search is told of rewards less a shift."""
 
-    reward_shift: float = Field(
+    reward_shift: Float = Field(
         0.0,
         ge=-1e6,
         le=1e6,
@@ -219,11 +254,11 @@ class Shifted(Part):
 class RealGenerations(Shifted):
     """What a world whose every step is a generation on the real env shares (model-free, action-space)."""
 
-    eval_every: int = Field(1, ge=1, le=10**9, description="generations between measurements of the centre policy")
-    eval_share: float = Field(
+    eval_every: Int = Field(1, ge=1, le=10**9, description="generations between measurements of the centre policy")
+    eval_share: Float = Field(
         0.25, gt=0, le=1, description="the most of the run's env steps that measuring may take (1: every eval_every)"
     )
-    checkpoint_every: int = Field(10, ge=1, le=10**9, description="generations between checkpoints")
+    checkpoint_every: Int = Field(10, ge=1, le=10**9, description="generations between checkpoints")
 
 
 class ModelFreeSettings(RealGenerations):
@@ -233,13 +268,13 @@ class ModelFreeSettings(RealGenerations):
     search: ParameterSearch = Field(
         default_factory=_default(PGPESettings), description="the search over the policy's weights"
     )
-    start: Demonstrations | StartFrom | None = Field(None, description="what the first centre is")
+    start: ModelFreeStart | None = Field(None, description="what the first centre is")
     observation_norm: bool | None = Field(
         None,
         description="feed the policy observations normalised by the mean and std of all training observations so far "
         "(unset: on for envs other than drrl's own, unless the run starts from demonstrations or another run)",
     )
-    restart_every: int | None = Field(
+    restart_every: Int | None = Field(
         None,
         ge=1,
         le=10**9,
@@ -288,34 +323,34 @@ class ModelBasedSettings(Shifted):
     search: ParameterSearch = Field(default_factory=_default(PGPESettings), description="the search inside the model")
     start: StartFrom | None = Field(None, description="what the first centre (and model) is")
     # the data loop
-    initial_episodes: int = Field(
+    initial_episodes: Int = Field(
         2, ge=1, le=1_000_000, description="real episodes of the first iteration (explorers μ ± ε)"
     )
-    episodes_per_iteration: int = Field(
+    episodes_per_iteration: Int = Field(
         2, ge=1, le=1_000_000, description="real episodes of every later iteration (μ, μ ± ε)"
     )
-    generations_per_iteration: int = Field(
+    generations_per_iteration: Int = Field(
         40,
         ge=1,
         le=1_000_000,
         description="most generations of the search inside the model per iteration",
         json_schema_extra={"flag": "generations-per-iteration"},
     )
-    patience: int = Field(
+    patience: Int = Field(
         10,
         ge=1,
         le=1_000_000,
         description="stop the in-model search when the candidates' mean imagined return has not improved over this "
         "many generations",
     )
-    imagined_horizon: int | None = Field(
+    imagined_horizon: Int | None = Field(
         None, ge=1, le=10**9, description="imagined episodes end after this many steps (unset: at the task's horizon)"
     )
     reward: str = choice("auto", REWARD_MODES, "the imagined episodes' reward and end: known, learned or auto")
-    disagreement_penalty: float = Field(
+    disagreement_penalty: Float = Field(
         0.0, ge=0, le=1e6, description="taken from an imagined step's reward, times the ensemble's disagreement"
     )
-    exploration_bonus: float = Field(
+    exploration_bonus: Float = Field(
         0.0,
         ge=0,
         le=1e6,
@@ -346,32 +381,32 @@ class ModelBasedSettings(Shifted):
         "or sparse polynomial, fitted by least squares",
         json_schema_extra={"choices": list(MODEL_KINDS), "flag": "model-kind"},
     )
-    hidden: tuple[int, ...] = Field(
+    hidden: tuple[Int, ...] = Field(
         (64,),
         min_length=1,
         description="widths of the world model's stacked layers",
         json_schema_extra={"flag": "model-hidden"},
     )
-    ensemble_size: int = Field(
+    ensemble_size: Int = Field(
         1, ge=1, le=1000, description="world models in the ensemble", json_schema_extra={"flag": "ensemble"}
     )
-    unfold: int = Field(4, ge=1, le=10_000, description="observed steps of a training window (3.3.1)")
-    overshoot: int = Field(
+    unfold: Int = Field(4, ge=1, le=10_000, description="observed steps of a training window (3.3.1)")
+    overshoot: Int = Field(
         16, ge=0, le=10_000, description="steps past them with targets (3.3.2)", json_schema_extra={"flag": "overshoot"}
     )
     future_inputs: str = choice("predictions", FUTURE_INPUTS, "what the overshooting steps are fed (3.3.3)")
     # its fitting
     model_optimizer: str = choice("adam_lambda", MODEL_OPTIMIZERS, "the model's optimizer: NAG (3.24), Adam-λ, ...")
-    model_lr: float = Field(1e-2, gt=0, le=1e3, description="the model optimizer's step size")
-    fit_batch_size: int = Field(128, ge=1, le=1_000_000, description="windows a gradient step")
-    fit_updates: int = Field(1000, ge=1, le=10**7, description="most gradient steps of the first fit")
-    refit_updates: int = Field(
+    model_lr: Float = Field(1e-2, gt=0, le=1e3, description="the model optimizer's step size")
+    fit_batch_size: Int = Field(128, ge=1, le=1_000_000, description="windows a gradient step")
+    fit_updates: Int = Field(1000, ge=1, le=10**7, description="most gradient steps of the first fit")
+    refit_updates: Int = Field(
         400,
         ge=1,
         le=10**7,
         description="most gradient steps of every later fit, which starts from the previous model's weights",
     )
-    fit_patience: int = Field(
+    fit_patience: Int = Field(
         5,
         ge=1,
         le=1_000_000,
@@ -379,7 +414,7 @@ class ModelBasedSettings(Shifted):
         f"{VALIDATE_EVERY} updates",
     )
     # frames
-    latent_size: int = Field(
+    latent_size: Int = Field(
         8,
         ge=2,
         le=4096,
@@ -387,16 +422,16 @@ class ModelBasedSettings(Shifted):
         description="frames only: the numbers of a frame's code, the (x, y) of latent_size / 2 keypoints (the latent "
         "state: the newest frame's code and its changes since the older frames)",
     )
-    frame_updates: int = Field(
+    frame_updates: Int = Field(
         1000, ge=1, le=10**7, description="frames only: gradient steps of the frame autoencoder's first fit"
     )
-    frame_refit_updates: int = Field(
+    frame_refit_updates: Int = Field(
         200, ge=1, le=10**7, description="frames only: gradient steps of every later fit, from the previous weights"
     )
 
     @field_validator("hidden")
     @classmethod
-    def _positive_widths(cls, value: tuple[int, ...]) -> tuple[int, ...]:
+    def _positive_widths(cls, value: tuple[Int, ...]) -> tuple[Int, ...]:
         if min(value) < 1 or max(value) > MAX_WIDTH:
             raise ValueError(f"every layer width must be in [1, {MAX_WIDTH}], got {value}")
         return value
@@ -452,7 +487,7 @@ def start_name(start: Demonstrations | StartFrom) -> str:
 class Measuring(Part):
     """How the centre policy is measured, on real episodes counted apart from training, and when a run stops."""
 
-    eval_episodes: int = Field(
+    eval_episodes: Int = Field(
         50, ge=1, le=100_000, description="episodes that measure the centre policy (not training)"
     )
     stop_when_solved: bool = Field(
@@ -460,7 +495,7 @@ class Measuring(Part):
         description="end the run once a measured centre meets every criterion of the task's verdict, the real "
         "episodes left unspent",
     )
-    solved_in_a_row: int = Field(
+    solved_in_a_row: Int = Field(
         1,
         ge=1,
         le=1000,
@@ -482,9 +517,9 @@ class RunSettings(Part):
 
     env: str = Field("cartpole", description="the environment: a drrl alias or any Gymnasium id")
     policy: str = Field("linear:nobias", description=ACCEPTED_FORMS)
-    budget: int = Field(1000, ge=1, le=10**9, description="real training episodes to spend")
-    max_steps: int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
-    seed: int = Field(0, ge=0, le=2**32 - 1, description="random seed")
+    budget: Int = Field(1000, ge=1, le=10**9, description="real training episodes to spend")
+    max_steps: Int | None = Field(None, ge=1, le=10**9, description="cut episodes longer than this")
+    seed: Int = Field(0, ge=0, le=2**32 - 1, description="random seed")
     device: str = Field("cpu", description="the torch device the search runs on: cpu or cuda")
     engine: str = choice(
         "auto",

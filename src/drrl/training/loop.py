@@ -18,6 +18,7 @@ the step, or lives in a saved state.
 from __future__ import annotations
 
 import itertools
+import re
 import signal
 import threading
 import time
@@ -35,9 +36,10 @@ from drrl.envs.registry import EnvEntry
 from drrl.policies import Policy
 from drrl.rollout import Backend, Evaluation, evaluate
 from drrl.search.base import Search
-from drrl.settings import ModelFreeSettings, TrainConfig
+from drrl.settings import ModelFreeSettings, TrainConfig, short_repr
 from drrl.streams import Stream, derive_seed
 
+MAX_COUNT = 2**53  # counts beyond it are not exact in metrics.csv's floats
 COUNTS = (
     "iteration",
     "generations",
@@ -372,8 +374,30 @@ def check_checkpoint(checkpoint: dict, kind: str) -> None:
         raise ValueError(f"checkpoint lacks {', '.join(missing)}")
     for key in COUNTS:
         value = checkpoint[key]
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise ValueError(f"checkpoint's {key} is {value!r}; it must be a whole number >= 0")
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_COUNT:
+            raise ValueError(f"checkpoint's {key} is {short_repr(value)}; it must be a whole number from 0 to 2**53")
+    for steps, episodes in (("real_steps", "real_episodes"), ("imagined_steps", "imagined_episodes")):
+        if checkpoint[steps] < checkpoint[episodes]:
+            raise ValueError(f"checkpoint's {steps} ({checkpoint[steps]}) is fewer than its {episodes}")
+    if checkpoint["best_iteration"] > checkpoint["iteration"]:
+        raise ValueError(
+            f"checkpoint's best_iteration ({checkpoint['best_iteration']}) is past its iteration "
+            f"({checkpoint['iteration']})"
+        )
+    wall_time, best = checkpoint["wall_time"], checkpoint["best_center_return"]
+    if not _real(wall_time) or not 0 <= wall_time < float("inf"):
+        raise ValueError(f"checkpoint's wall_time is {short_repr(wall_time)}; it must be a number of seconds >= 0")
+    if (
+        not _real(best)
+        or best != best
+        or best == float("inf")
+        or (best == float("-inf")) != (checkpoint["best_iteration"] == 0)
+    ):
+        raise ValueError(
+            f"checkpoint's best_center_return is {short_repr(best)}; it must be a finite return, or -inf before "
+            f"any centre was measured"
+        )
+    _check_metrics_record(checkpoint.get("metrics"), checkpoint["iteration"])
     size = checkpoint["num_params"]
     if isinstance(size, bool) or not isinstance(size, int) or size < 1:
         raise ValueError(f"checkpoint's num_params is {size!r}; it must be a whole number >= 1")
@@ -388,12 +412,53 @@ def check_checkpoint(checkpoint: dict, kind: str) -> None:
             raise ValueError(f"checkpoint's {key} must be {size} finite float32 numbers (its num_params)")
 
 
+def _real(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_metrics_record(record, iteration: int) -> None:
+    """The record of metrics rows a checkpoint holds (``RunFolder.save_checkpoint``): None, or its rows' count,
+    bytes and SHA-256."""
+    if record is None:
+        return
+    if (
+        not isinstance(record, dict)
+        or record.keys() != {"rows", "bytes", "sha256"}
+        or record["rows"] != iteration
+        or isinstance(record["bytes"], bool)
+        or not isinstance(record["bytes"], int)
+        or record["bytes"] < 0
+        or not (isinstance(record["sha256"], str) and re.fullmatch("[0-9a-f]{64}", record["sha256"]))
+    ):
+        raise ValueError(f"checkpoint's record of its metrics rows is {short_repr(record)}; it is not one drrl writes")
+
+
+def check_rows(counters: Counters) -> None:
+    """Refuse metrics rows that do not end where the checkpoint's counters are (another run's, or edited)."""
+    last = counters.rows[-1] if counters.rows else {}
+    for key in ("real_episodes", "real_steps"):
+        if last and last.get(key) != getattr(counters, key):
+            raise ValueError(
+                f"metrics.csv's last row has {key} {last.get(key)}, the checkpoint {getattr(counters, key)}: they "
+                f"are not of the same run"
+            )
+
+
 def restore(setup: Setup, checkpoint: dict) -> Counters:
     """Load a checkpoint into ``setup``'s search and world; its counters (metrics rows not included)."""
     check_checkpoint(checkpoint, setup.world.kind)
     for key, expected in (("env_id", setup.entry.env_id), ("num_params", setup.policy.num_params)):
         if checkpoint[key] != expected:
             raise ValueError(f"checkpoint is for {key} {checkpoint[key]!r} but the run's config gives {expected!r}")
+    world = setup.world
+    for key, most in (("iteration", world.iterations), ("real_episodes", world.real_budget)):
+        if checkpoint[key] > most:
+            raise ValueError(f"checkpoint's {key} is {checkpoint[key]}, past the run's {most}")
+    if checkpoint["best_center_criteria"] > len(setup.entry.criteria()):
+        raise ValueError(
+            f"checkpoint's best_center_criteria is {checkpoint['best_center_criteria']}; {setup.entry.env_id} has "
+            f"{len(setup.entry.criteria())} criteria"
+        )
     try:
         setup.search.load_state_dict(checkpoint["search"])
         setup.world.load_state_dict(checkpoint["world"])

@@ -37,6 +37,7 @@ from drrl.settings import (
     PGPESettings,
     PolicyGradientSettings,
     TrainConfig,
+    short_repr,
 )
 from drrl.streams import Stream, derive_seed
 from drrl.training.action_space import ActionSpace
@@ -48,6 +49,7 @@ from drrl.training.loop import (
     Subscriber,
     World,
     check_checkpoint,
+    check_rows,
     restore,
     run,
 )
@@ -245,14 +247,15 @@ def prepare_resume(
     """
     folder.claim()
     try:
-        config, checkpoint = folder.load_run()
+        config, checkpoint = open_run(folder)
         setup = prepare(config, backend, address, workers, resuming=True)
     except BaseException:
         folder.release()
         raise
     try:
         counters = restore(setup, checkpoint)
-        counters.rows = folder.truncate_metrics(counters.iteration)
+        counters.rows = folder.truncate_metrics(counters.iteration, checkpoint.get("metrics"))
+        check_rows(counters)
     except BaseException:
         setup.close()
         folder.release()
@@ -325,6 +328,12 @@ def open_run(folder: RunFolder) -> tuple[TrainConfig, dict]:
     this config, of its kind, with every counter and centre well formed."""
     config, checkpoint = folder.load_run()
     check_checkpoint(checkpoint, config.world.kind)
+    trained_on = lookup(config.env).env_id
+    if checkpoint["env_id"] != trained_on:
+        raise ValueError(
+            f"checkpoint's env_id {short_repr(checkpoint['env_id'])} does not match config.json's env {config.env} "
+            f"({trained_on})"
+        )
     return config, checkpoint
 
 
