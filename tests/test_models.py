@@ -584,3 +584,15 @@ def test_known_rewards_on_observations_equal_the_tasks_rewards_on_states(env_id,
     np.testing.assert_allclose(reward, expected_reward, atol=1e-6)
     np.testing.assert_array_equal(end, expected_end)
     assert end.any() and not end.all()
+
+
+def test_a_batch_larger_than_the_data_is_the_data_s_size():
+    """A fit's batch is at most the training windows: a larger one only repeats windows (and held memory for them)."""
+    weights = []
+    for batch_size in (10**4, 10**5):
+        torch.manual_seed(0)
+        model = WorldModel(2, 1, (4,))
+        settings = FitSettings(unfold=2, overshoot=2, learn_reward=False, batch_size=batch_size, max_updates=20)
+        fit(model, EpisodeBuffer(linear_system_episodes(2, 20, seed=1)), settings)
+        weights.append(torch.cat([p.detach().flatten() for p in model.parameters()]))
+    assert torch.equal(*weights)

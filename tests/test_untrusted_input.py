@@ -2,14 +2,20 @@
 (any type of file, TOML's booleans, JSON's repeated keys), flags, and run folders whose metrics or checkpoint were
 edited (a forged checkpoint has its digest recomputed, as drrl's own writer would)."""
 
+import http.server
 import os
+import resource
 import shutil
+import subprocess
+import sys
+import threading
+import time
 
 import pytest
 from click.testing import CliRunner
 
 from drrl.cli import main
-from drrl.runs import METRICS, RunFolder
+from drrl.runs import CHECKPOINT, CONFIG, METRICS, RunFolder
 
 
 def drrl(*args):
@@ -196,3 +202,134 @@ def test_metrics_whose_step_column_is_not_a_count_are_named_when_plotted(copy):
     METRICS_EDITS["a generation of inf"](copy)
     with pytest.raises(ValueError, match=r"metrics.csv is damaged \(line 2's generation is 'inf', not 1\)"):
         RunFolder(copy).read_metrics()
+
+
+def test_a_checkpoint_recording_settings_from_before_one_existed_is_read_with_its_default(copy):
+    run = RunFolder(copy)
+    state = run.load_checkpoint()
+    del state["config"]["measuring"]["solved_in_a_row"]  # as a drrl without that setting recorded it
+    run.save_checkpoint(state)
+    result = drrl("eval", copy, "--episodes", 2)
+    assert result.exit_code == 0 and "balanced:" in result.output, result.output
+
+
+# ------------------------------------------------------------------------------------------------ places to write
+
+
+@pytest.mark.parametrize(
+    "out, message",
+    [
+        ("a" * 300, "has a name of 300 bytes"),
+        ("/".join(["b" * 200] * 25), "is a path of 5"),
+        ("afile/run", "which is a file, not a folder"),
+    ],
+)
+def test_an_output_place_that_cannot_be_written_is_refused_before_any_work(tmp_path, out, message):
+    (tmp_path / "afile").write_text("")
+    one_line_refusal(drrl("train", "cartpole", "--out", tmp_path / out, "--quiet"), 2, message)
+    one_line_refusal(drrl("compare", "--out", tmp_path / out, "--budget", 16), 2, message)
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["afile"]
+
+
+@pytest.mark.parametrize(
+    "video, message",
+    [("r" * 300 + ".gif", "has a name of 304 bytes"), ("/proc/version.gif", "nothing can be made in /proc")],
+)
+def test_render_refuses_a_video_it_could_not_write_before_recording(copy, video, message):
+    result = drrl("render", copy, "--out", video if video.startswith("/") else copy.parent / video)
+    one_line_refusal(result, 1, message)
+
+
+def test_render_makes_the_video_s_missing_folders(copy):
+    video = copy.parent / "videos" / "of" / "run.gif"
+    result = drrl("render", copy, "--out", video)
+    assert result.exit_code == 0 and video.stat().st_size > 0, result.output
+
+
+def test_compare_takes_its_env_from_the_config_file(tmp_path):
+    (tmp_path / "ne.toml").write_text('env = "nonexistent-v0"\n')
+    one_line_refusal(drrl("compare", "--config", tmp_path / "ne.toml", "--out", tmp_path / "c"), 2, "nonexistent-v0")
+    result = drrl("compare", "--config", tmp_path / "ne.toml", "--env", "cartpole", "--out", tmp_path / "c")
+    one_line_refusal(result, 2, "two environments given: 'nonexistent-v0' in")
+
+
+def test_a_family_prefix_of_a_family_member_is_refused():
+    one_line_refusal(drrl("train", "--env", "Pixels/" * 400 + "CartPole-v1"), 2, "Pixels/ID takes a plain env id")
+
+
+# ------------------------------------------------------------------------------------------------ stopped runs
+
+
+def test_a_run_stopped_before_its_first_checkpoint_starts_again_and_gives_the_same_run(tmp_path, finished):
+    out = tmp_path / "run"
+    out.mkdir()
+    shutil.copy(finished[0] / CONFIG, out / CONFIG)  # what a run killed while starting leaves
+    one_line_refusal(drrl("eval", out), 1, "its run stopped before the first; drrl train --resume")
+    result = drrl("train", "--resume", out, "--quiet")
+    assert result.exit_code == 0 and "starting" in result.output and "again from its start" in result.output
+    assert (out / METRICS).read_text().count("\n") == (finished[0] / METRICS).read_text().count("\n")
+    same = [line.split(",")[:-1] for line in (out / METRICS).read_text().splitlines()]
+    assert same == [line.split(",")[:-1] for line in (finished[0] / METRICS).read_text().splitlines()]
+
+
+def test_an_interrupt_while_preparing_leaves_no_folder(tmp_path, monkeypatch):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("drrl.cli.commands.prepare", interrupted)
+    one_line_refusal(drrl("train", "cartpole", "--out", tmp_path / "run"), 1, "interrupted while preparing the run")
+    assert not (tmp_path / "run").exists()
+
+
+def under_file_size_limit(code: str, limit: int) -> subprocess.CompletedProcess:
+    """``code`` run by Python in a process that may write files of at most ``limit`` bytes (a full disk's errors)."""
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit)),
+    )
+
+
+def test_a_full_disk_at_the_first_checkpoint_is_one_line_and_the_run_starts_again_when_there_is_room(tmp_path):
+    out = tmp_path / "run"
+    arguments = ["train", "cartpole", "--policy", "mlp:32", "--budget", "48", "--out", str(out)]
+    train = f"from drrl.cli import main; main({arguments!r})"
+    full = under_file_size_limit(train, 4096)
+    assert full.returncode == 1 and "File too large" in full.stderr and "Traceback" not in full.stderr, full.stderr
+    assert sorted(path.name for path in out.iterdir()) == [CONFIG]
+    result = drrl("train", "--resume", out, "--quiet")
+    assert result.exit_code == 0 and "done: 6 generations" in result.output, result.output
+
+
+def test_a_checkpoint_that_does_not_fit_keeps_the_last_one_whole(copy):
+    before = (copy / CHECKPOINT).read_bytes()
+    save = (
+        f"import torch; from drrl.runs import RunFolder; run = RunFolder('{copy}'); state = run.load_checkpoint(); "
+        f"state['grown'] = torch.zeros(10_000); run.save_checkpoint(state)"
+    )
+    full = under_file_size_limit(save, len(before) + 1000)
+    assert "OSError: [Errno 27] File too large" in full.stderr and str(copy / CHECKPOINT) in full.stderr, full.stderr
+    assert (copy / CHECKPOINT).read_bytes() == before and not list(copy.glob("*.tmp"))
+
+
+# ------------------------------------------------------------------------------------------------ Ray
+
+
+def test_a_ray_address_is_checked_for_its_port_and_what_answers_there():
+    pytest.importorskip("ray")
+    from drrl.rollout.ray import CONNECT_TIMEOUT, _check_reachable, _host_and_port
+
+    assert _host_and_port("[::1]:6379") == ("::1", 6379)
+    assert _host_and_port("ray://10.0.0.1:10001") == ("10.0.0.1", 10001)
+    with pytest.raises(ValueError, match="port 99999 is out of range; a port is from 1 to 65535"):
+        _check_reachable("127.0.0.1:99999")
+    server = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    start = time.perf_counter()
+    try:
+        with pytest.raises(ValueError, match=r"something answers at .*, but no Ray cluster could be joined there"):
+            _check_reachable(f"127.0.0.1:{server.server_address[1]}")
+    finally:
+        server.shutdown()
+    assert time.perf_counter() - start < CONNECT_TIMEOUT + 5

@@ -15,6 +15,7 @@ import io
 import json
 import os
 import re
+import tempfile
 import textwrap
 import weakref
 from contextlib import contextmanager
@@ -40,6 +41,7 @@ CONFIG = "config.json"
 METRICS = "metrics.csv"
 CHECKPOINT = "checkpoint.safetensors"
 CURVE = "learning_curve.png"
+PATH_MAX, NAME_MAX = 4096, 255  # Linux's limits on a path and on one name in it, in bytes
 PICKLE_STARTS = (b"\x80", b"PK\x03\x04")  # a pickle (protocol 2 and later); torch.save's zip archive
 
 
@@ -56,9 +58,11 @@ class RunFolder:
         """Make a new, empty run folder, held by this process (``claim``); refuse one that holds files."""
         path = Path(path)
         try:
+            check_writable(path, "run folder", folder=True)
             path.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise ValueError(f"cannot make run folder {path}: {error.strerror}; choose another --out") from None
+        except (ValueError, OSError) as error:
+            why = error.strerror if isinstance(error, OSError) else error
+            raise ValueError(f"{why}; choose another --out") from None
         if not os.access(path, os.W_OK):
             raise ValueError(f"run folder {path} is not writable; choose another --out")
         folder = cls(path).claim()
@@ -191,9 +195,18 @@ class RunFolder:
 
     def load_checkpoint(self) -> dict[str, Any]:
         file = self.path / CHECKPOINT
+        if self.stopped_before_its_first_checkpoint():
+            raise ValueError(
+                f"{self.path} has no checkpoint: its run stopped before the first; drrl train --resume {self.path} "
+                f"starts it again"
+            )
         if not file.is_file():
             raise ValueError(f"{self.path} has no checkpoint ({CHECKPOINT})")
         return read_checkpoint(file)
+
+    def stopped_before_its_first_checkpoint(self) -> bool:
+        """Whether the folder holds a run's settings but no checkpoint: it was stopped (killed) while starting."""
+        return (self.path / CONFIG).is_file() and not (self.path / CHECKPOINT).exists()
 
     def load_run(self) -> tuple[TrainConfig, dict[str, Any]]:
         """config.json and the checkpoint, refused unless the checkpoint was trained with exactly these settings
@@ -301,9 +314,39 @@ def writing(file: Path):
             file.unlink(missing_ok=True)
         if isinstance(error, OSError):
             raise
-        code = re.search(r"code: (\d+)", str(error))
+        code = re.search(r"(?:code: |os error )(\d+)", str(error))
         number = int(code.group(1)) if code else errno.EIO
         raise OSError(number, os.strerror(number), str(file)) from None
+
+
+def check_writable(path: Path, what: str, folder: bool) -> None:
+    """Refuse, before any work, a place drrl could not write ``what`` to: a path or a name longer than the system
+    allows, a file where a folder is needed, or a folder in which nothing can be created (read-only, /proc). Folders
+    still missing are left to the writer to make."""
+    path = Path(path)
+    size = len(os.fsencode(path))
+    if size >= PATH_MAX:
+        raise ValueError(f"{what} is a path of {size} bytes; the system allows at most {PATH_MAX - 1}")
+    longest = max(path.parts, key=lambda part: len(os.fsencode(part)), default="")
+    if len(os.fsencode(longest)) > NAME_MAX:
+        raise ValueError(
+            f"{what} {short_repr(str(path), 60)} has a name of {len(os.fsencode(longest))} bytes "
+            f"({short_repr(longest, 30)}); the system allows at most {NAME_MAX}"
+        )
+    if path.exists() and path.is_dir() != folder:
+        raise ValueError(
+            f"{what} {path} is {'a file' if folder else 'a folder'}; give {'a folder' if folder else 'a file'}"
+        )
+    place = path if folder else path.parent
+    while not place.exists() and place != place.parent:
+        place = place.parent
+    if not place.is_dir():
+        raise ValueError(f"{what} {path} lies under {place}, which is a file, not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=place):
+            pass
+    except OSError as error:
+        raise ValueError(f"cannot write {what} {path}: nothing can be made in {place} ({error.strerror})") from None
 
 
 def learning_curve(
@@ -436,9 +479,8 @@ def recorded(settings: Any) -> Any:
 
 
 def _recorded_form(settings: dict) -> dict:
-    """The settings a checkpoint records, in the nested form as config.json holds them."""
-    if not is_flat(settings):
-        return settings
+    """The settings a checkpoint records, in the nested form as config.json holds them, with the defaults of settings
+    added since (a setting the run did not know ran as its default)."""
     try:
         return TrainConfig.model_validate(recorded(settings)).model_dump(mode="json")
     except ValidationError:

@@ -24,7 +24,7 @@ from drrl.envs.registry import lookup
 from drrl.envs.rendered import rendering_env
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
-from drrl.runs import RunFolder
+from drrl.runs import RunFolder, check_writable
 from drrl.training.train import as_read, check_same_spaces, open_run, policy_inputs, trained_center
 
 VIDEO_FORMATS = (".gif", ".mp4")
@@ -50,6 +50,7 @@ def check_video_path(path: Path | str) -> Path:
         raise ValueError(f"unsupported video format {path.suffix!r} of {path}; use one of {', '.join(VIDEO_FORMATS)}")
     if path.suffix.lower() == ".mp4":
         _mp4_writer()
+    check_writable(path, "video", folder=False)
     return path
 
 
@@ -67,6 +68,14 @@ def write_video(frames: list[np.ndarray], path: Path | str, fps: float) -> Path:
     path = check_video_path(path)
     if not frames:
         raise ValueError("no frames to write")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return _write_frames(frames, path, fps)
+    except OSError as error:  # a full disk, a folder removed meanwhile
+        raise ValueError(f"cannot write {path}: {error.strerror or error}") from None
+
+
+def _write_frames(frames: list[np.ndarray], path: Path, fps: float) -> Path:
     if path.suffix.lower() == ".gif":
         from PIL import Image
 
@@ -151,7 +160,7 @@ def render_run(
     out = check_video_path(out)
     folder = RunFolder(Path(run_path))
     config, checkpoint = open_run(folder)
-    env_id = lookup(env_name or checkpoint["env_id"]).env_id
+    env_id = lookup(checkpoint["env_id"] if env_name is None else env_name).env_id
     env = rendering_env(env_id, env_options)
     if env_name is not None:
         trained_on = rendering_env(lookup(checkpoint["env_id"]).env_id, env_options)

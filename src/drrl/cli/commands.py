@@ -17,13 +17,13 @@ from drrl.cli.settings import show_settings as show_settings_of
 from drrl.envs.batch import make_batch_env
 from drrl.envs.registry import aliases, lookup
 from drrl.rollout import BACKENDS, NonFiniteOutput
-from drrl.runs import RunFolder
+from drrl.runs import RunFolder, check_writable
 from drrl.settings import TrainConfig, describe_errors, load_config_file
 from drrl.settings.flat import flattened
 from drrl.settings.presets import suggested as suggested_settings
 from drrl.settings.presets import task_preset, task_settings
 from drrl.streams import Stream, derive_seed
-from drrl.training.loop import Counters, Setup, measure, one_thread, run, solved
+from drrl.training.loop import Counters, Setup, measure, one_thread, run, sigterm_as_interrupt, solved
 from drrl.training.model_based import ModelDiverged
 from drrl.training.train import (
     as_read,
@@ -149,23 +149,42 @@ def train_command(
         raise click.UsageError("invalid configuration:\n" + describe_errors(error)) from None
     if show_settings:
         return click.echo(show_settings_of(config, config_file, file_settings, flags))
+    try:
+        lookup(config.env)  # an unknown env is refused before a folder is named after it
+    except ValueError as error:
+        raise click.UsageError(str(error)) from None
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = Path(out or Path("runs") / f"{config.env.replace('/', '-')}-{stamp}")
-    made = not out.exists()
+    out = Path(out or Path("runs") / f"{config.env.replace('/', '-')[:100]}-{stamp}")
+    with sigterm_as_interrupt():  # from before the folder exists: a signal finds it whole or absent
+        start_run(config, out, backend, address, workers, quiet, tensorboard)
+
+
+def start_run(
+    config: TrainConfig,
+    out: Path,
+    backend: str,
+    address: str | None,
+    workers: int | None,
+    quiet: bool,
+    tensorboard: bool,
+) -> None:
+    """Make the run folder, prepare the run (an interrupt meanwhile leaves no folder behind), then run it."""
     try:  # before any work (demonstrations are recorded while preparing): an occupied --out is refused at once
+        check_writable(out, "run folder", folder=True)
+        made = not out.exists()
         folder = RunFolder.create(out)
     except ValueError as error:
         raise click.UsageError(str(error)) from None
+    setup = None
     try:
         setup = prepare(config, backend, address, workers, progress=not quiet)
-    except ValueError as error:  # unknown environment or policy, a space drrl cannot use, settings that conflict
-        abandon(folder, made)
-        raise click.UsageError(str(error)) from None
-    try:
         attached = subscribers(folder, not quiet, tensorboard)
-    except ImportError as error:  # TensorBoard not installed
-        setup.close()
+    except (ValueError, ImportError, KeyboardInterrupt) as error:  # a bad env, conflicting settings, no TensorBoard
+        if setup is not None:
+            setup.close()
         abandon(folder, made)
+        if isinstance(error, KeyboardInterrupt):
+            raise click.ClickException("interrupted while preparing the run; nothing was trained") from None
         raise click.UsageError(str(error)) from None
     run_and_report(setup, folder, attached)
 
@@ -187,7 +206,7 @@ def resume_run(
     except ValueError as error:
         raise click.ClickException(f"cannot resume {path}: {error}") from None
     unit, total = setup.world.unit, setup.world.iterations
-    if counters.iteration == total:
+    if counters is not None and counters.iteration == total:
         setup.close()
         return click.echo(f"{path} is complete: all {total} {unit}s done")
     try:
@@ -195,7 +214,10 @@ def resume_run(
     except ImportError as error:
         setup.close()
         raise click.UsageError(str(error)) from None
-    click.echo(f"resuming {path} at {unit} {counters.iteration + 1} of {total}")
+    if counters is None:
+        click.echo(f"starting {path} again from its start: it stopped before its first checkpoint")
+    else:
+        click.echo(f"resuming {path} at {unit} {counters.iteration + 1} of {total}")
     run_and_report(setup, folder, attached, counters)
 
 
@@ -242,10 +264,15 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
     try:
         counters = run(setup, attached, counters)
     except (NonFiniteOutput, ModelDiverged, KeyboardInterrupt) as error:
-        done = folder.load_checkpoint()["iteration"]
         why = "interrupted" if isinstance(error, KeyboardInterrupt) else str(error)
         if not isinstance(error, KeyboardInterrupt):
             (out / ERROR_LOG).write_text(traceback.format_exc())
+        if folder.stopped_before_its_first_checkpoint():
+            raise click.ClickException(
+                f"{why} before the first checkpoint\nrun folder kept: {out}\nstart it again with: drrl train "
+                f"--resume {out}"
+            ) from None
+        done = folder.load_checkpoint()["iteration"]
         raise click.ClickException(
             f"{why}\nrun folder and checkpoint ({unit} {done}) kept: {out}\ncontinue with: drrl train --resume {out}"
         ) from None

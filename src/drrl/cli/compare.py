@@ -20,7 +20,8 @@ from drrl.compare import (
     model_based_budget_of,
 )
 from drrl.envs.batch import is_frames, make_batch_env
-from drrl.settings import describe_errors, load_config_file
+from drrl.runs import check_writable
+from drrl.settings import describe_errors, load_config_file, short_repr
 
 COMPARE_BUDGET = 300  # real episodes of a model-free run in a comparison: enough for the cart-pole's PGPE to balance
 
@@ -37,7 +38,7 @@ def observes_frames(env: str) -> bool:
 
 
 @click.command("compare")
-@click.option("--env", default="cartpole", show_default=True, help="Environment to compare the methods on.")
+@click.option("--env", help="Environment to compare the methods on  [default: the config file's env, else cartpole]")
 @click.option("--seeds", type=COUNT, default=3, show_default=True, help="seeds per method")
 @click.option(
     "--budget",
@@ -76,10 +77,15 @@ def compare_command(env, seeds, budget, model_based_budget, methods, config_file
     super-symmetric and model-based PGPE and the action-space REINFORCE and eNAC (and PPO, if asked), mean and
     ±1 s.e. band over seeds, as one PNG and one CSV."""
     try:
+        check_writable(out, "compare folder", folder=True)
         settings = load_config_file(config_file) if config_file else {}
     except ValueError as error:
         raise click.UsageError(str(error)) from None
-    settings["env"] = env
+    if env is not None and settings.get("env", env) != env:
+        raise click.UsageError(f"two environments given: {settings['env']!r} in {config_file} and --env {env!r}")
+    env = settings["env"] = env or settings.get("env") or "cartpole"
+    if not isinstance(env, str):
+        raise click.UsageError(f"env in {config_file}: must be an environment name, not {short_repr(env)}")
     if budget is None:
         budget = curve_budget(env, COMPARE_BUDGET)
     if model_based_budget is None:

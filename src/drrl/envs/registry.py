@@ -106,6 +106,13 @@ def _member(env_id: str) -> EnvEntry | None:
     """The entry of a family's member, registered in this process when first named; None for any other id."""
     for prefix, register_member in FAMILIES.items():
         if env_id.startswith(prefix):
+            inner = env_id.removeprefix(prefix)
+            nested = next((other for other in FAMILIES if inner.startswith(other)), None)
+            if nested is not None:
+                raise ValueError(
+                    f"{env_id[:60]!r}{'...' if len(env_id) > 60 else ''}: {prefix}ID takes a plain env id, not one of "
+                    f"{nested}ID (e.g. {prefix}CartPole-v1)"
+                )
             if env_id not in ENTRIES:
                 register_member(env_id)
             return ENTRIES[env_id]

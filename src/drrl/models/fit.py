@@ -152,8 +152,9 @@ def fit(
     best_state = [p.detach().clone() for p in parameters]
     since_best = torch.zeros(len(model), dtype=torch.long)
     stop, updates = "max_updates", 0
+    batch_size = min(settings.batch_size, int(train_counts.max()))  # a larger batch would only repeat windows
     for updates in range(1, settings.max_updates + 1):
-        positions = (torch.rand(len(model), settings.batch_size, generator=generator) * train_counts[:, None]).long()
+        positions = (torch.rand(len(model), batch_size, generator=generator) * train_counts[:, None]).long()
         index = train_index.gather(1, positions)
 
         def closure(index=index):

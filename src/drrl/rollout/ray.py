@@ -13,6 +13,8 @@ from __future__ import annotations
 import logging
 import os
 import socket
+import subprocess
+import sys
 import warnings
 from typing import Any, cast
 
@@ -27,7 +29,12 @@ from drrl.rollout.memory import retain_freed_memory
 INSTALL_HINT = '--backend ray needs Ray, which is not installed: pip install "drrl[ray]"'
 MAX_ATTEMPTS = 4  # runs of one chunk in one generation before the run gives up
 START_TIMEOUT = 120  # seconds for the actors to start
-CONNECT_TIMEOUT = 10  # seconds for a cluster address to answer
+CONNECT_TIMEOUT = 10  # seconds for a cluster address to answer and be joined
+LISTENS_EVERYWHERE = (
+    "the local Ray drrl starts listens on every network interface, not on 127.0.0.1 alone: its GCS, raylet, "
+    "runtime-env agent, workers and this process (Ray has no setting that binds them to one address); on a shared "
+    "machine, keep its ports behind a firewall or use --backend local"
+)
 
 try:
     import ray
@@ -89,6 +96,8 @@ class RayBackend:
         self._owns_ray = not ray.is_initialized()
         if self._owns_ray:
             _check_reachable(address)
+            if address is None:
+                warnings.warn(LISTENS_EVERYWHERE, stacklevel=2)
             try:
                 ray.init(address=address, include_dashboard=False, logging_level=logging.WARNING)
             except ConnectionError as error:
@@ -171,17 +180,44 @@ class RayBackend:
 
 
 def _check_reachable(address: str | None) -> None:
-    """Refuse a cluster address nothing answers at, within ``CONNECT_TIMEOUT`` seconds: Ray itself keeps
-    retrying for many minutes."""
+    """Refuse, within about ``CONNECT_TIMEOUT`` seconds, a cluster address Ray could not join: not HOST:PORT, a port
+    out of range, nothing answering, or something that answers but is not a Ray cluster (Ray itself would retry for
+    minutes). The join is tried in a child process, which is stopped when the time is up."""
     if address is None or address == "auto":
         return
-    host, _, port = address.removeprefix("ray://").rpartition(":")
-    if not port.isdigit():
-        raise ValueError(f"--address {address!r} is not HOST:PORT (e.g. 10.0.0.1:6379)")
+    host, port = _host_and_port(address)
     try:
-        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT).close()
+        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT).close()
     except OSError as error:
         raise ValueError(
             f"nothing answers at the Ray cluster address {address} ({error.strerror or error}); is "
             f"the cluster up (ray start --head)?"
         ) from None
+    join = f"import ray; ray.init(address={address!r}, include_dashboard=False, logging_level='ERROR')"
+    try:
+        subprocess.run([sys.executable, "-c", join], capture_output=True, timeout=CONNECT_TIMEOUT, check=True)
+    except subprocess.TimeoutExpired as error:
+        said = f" (Ray: {_last_line(error.stderr)})" if error.stderr else ""
+        raise ValueError(
+            f"something answers at {address}, but no Ray cluster could be joined there within {CONNECT_TIMEOUT} "
+            f"s{said}; is it the head node's GCS port (6379 unless ray start --port said otherwise)?"
+        ) from None
+    except subprocess.CalledProcessError as error:
+        raise ValueError(f"cannot join the Ray cluster at {address}: {_last_line(error.stderr)}") from None
+
+
+def _last_line(output: bytes | None) -> str:
+    """The last line a Ray process wrote, without its log prefix, for a one-line message."""
+    lines = (output or b"").decode(errors="replace").strip().splitlines() or ["no message"]
+    return lines[-1].rpartition("] ")[2][:200]
+
+
+def _host_and_port(address: str) -> tuple[str, int]:
+    """HOST and PORT of ``address`` (HOST:PORT, [IPv6]:PORT, optionally after ray://), the port from 1 to 65535."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    host = host.removeprefix("[").removesuffix("]") if host.startswith("[") else host
+    if not host or not (port.isascii() and port.isdigit()):
+        raise ValueError(f"--address {address!r} is not HOST:PORT (e.g. 10.0.0.1:6379, or [::1]:6379 for IPv6)")
+    if not 1 <= int(port) <= 65535:
+        raise ValueError(f"--address {address!r}: port {int(port)} is out of range; a port is from 1 to 65535")
+    return host, int(port)

@@ -398,7 +398,9 @@ class ModelBasedSettings(Shifted):
     # its fitting
     model_optimizer: str = choice("adam_lambda", MODEL_OPTIMIZERS, "the model's optimizer: NAG (3.24), Adam-λ, ...")
     model_lr: Float = Field(1e-2, gt=0, le=1e3, description="the model optimizer's step size")
-    fit_batch_size: Int = Field(128, ge=1, le=1_000_000, description="windows a gradient step")
+    fit_batch_size: Int = Field(
+        128, ge=1, le=1_000_000, description="windows a gradient step (at most as many as the data hold)"
+    )
     fit_updates: Int = Field(1000, ge=1, le=10**7, description="most gradient steps of the first fit")
     refit_updates: Int = Field(
         400,

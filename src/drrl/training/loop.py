@@ -204,7 +204,7 @@ def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters
         subscriber.started(setup, counters, snapshot)
     start = time.perf_counter() - counters.wall_time
     try:
-        with _sigterm_as_interrupt(), one_thread():
+        with sigterm_as_interrupt(), one_thread():
             for iteration in range(counters.iteration + 1, setup.world.iterations + 1):
                 if solved(setup, counters):
                     break
@@ -310,9 +310,10 @@ def one_thread():
 
 
 @contextmanager
-def _sigterm_as_interrupt():
+def sigterm_as_interrupt():
     """While training, SIGTERM stops the run as Ctrl-C does (KeyboardInterrupt), so that both save a checkpoint.
-    Both handlers are installed here, so that neither depends on what a library imported earlier did with them."""
+    Both handlers are installed here, so that neither depends on what a library imported earlier did with them; the
+    command line installs them before it makes a run folder, so that no signal finds the folder half made."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return

@@ -127,7 +127,7 @@ def restarted_search(config: TrainConfig, policy: Policy, attempt: int) -> Searc
 def memory_needed(config: TrainConfig, policy: Policy) -> int:
     """A lower bound on the bytes a run holds at once: the candidates' weights and the search's vectors, a
     rollout's observation and action arrays (a few temporaries each), and a world model's weights and the
-    imagined episodes' states. The environments' own state comes on top."""
+    imagined episodes' states and a fitting step's batch. The environments' own state comes on top."""
     slots = config.episodes_per_generation
     needed = 4 * policy.num_params * (config.search.popsize + 8)
     needed += 8 * 8 * (slots + config.measuring.eval_episodes) * (policy.observation_size + policy.action_size)
@@ -138,6 +138,8 @@ def memory_needed(config: TrainConfig, policy: Policy) -> int:
             (fan_in + width) * 4 * width for fan_in, width in zip((inputs, *widths[:-1]), widths, strict=True)
         )
         needed += 4 * model.ensemble_size * (4 * weights + 2 * slots * sum(widths))  # Adam's moments, states
+        window = (model.unfold + model.overshoot) * (inputs + 4 * sum(widths))  # a window's activations (LSTM: 4)
+        needed += 4 * model.ensemble_size * model.fit_batch_size * window * 2  # a gradient step's, and their grads
     return needed
 
 
@@ -146,11 +148,12 @@ def check_memory(config: TrainConfig, policy: Policy) -> None:
     needed = memory_needed(config, policy)
     free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else None
     if free is not None and needed > free:
+        smaller = "policy, popsize, model or fit_batch_size" if config.model_based else "policy, popsize or model"
         raise ValueError(
             f"this run needs at least {needed / 2**30:.1f} GiB ({config.search.popsize} candidates of a "
             f"{policy.num_params:,}-weight {config.policy} policy, their episodes"
-            f"{', the world model' if config.model_based else ''}), more than the {free / 2**30:.1f} "
-            f"GiB free; use a smaller policy, popsize or model"
+            f"{', the world model and its fitting batch' if config.model_based else ''}), more than the "
+            f"{free / 2**30:.1f} GiB free; use a smaller {smaller}"
         )
 
 
@@ -238,15 +241,20 @@ def prepare(
 
 def prepare_resume(
     folder: RunFolder, backend: str = "local", address: str | None = None, workers: int | None = None
-) -> tuple[Setup, Counters]:
+) -> tuple[Setup, Counters | None]:
     """The run in ``folder`` rebuilt at its checkpoint, its metrics.csv cut back to the checkpoint's step; the folder
-    is held by this process from now on (``RunFolder.claim``).
+    is held by this process from now on (``RunFolder.claim``). A run stopped before its first checkpoint is rebuilt
+    at its start (no counters): run again, it gives what it would have, with the same settings and seed.
 
     A folder that cannot be resumed exactly (a bad config or checkpoint, missing metrics), or that another process
     holds, raises ValueError.
     """
     folder.claim()
     try:
+        if folder.stopped_before_its_first_checkpoint():
+            setup = prepare(folder.read_config(), backend, address, workers, resuming=True)
+            folder.truncate_metrics(0)
+            return setup, None
         config, checkpoint = open_run(folder)
         setup = prepare(config, backend, address, workers, resuming=True)
     except BaseException:
