@@ -172,7 +172,7 @@ class RunFolder:
         """The state, with the record of the metrics rows it has seen (``state["iteration"]`` of them), so that the
         folder is resumed only with those rows."""
         if "iteration" in state:
-            state = state | {"metrics": self._metrics_record(int(state["iteration"]))}
+            state = state | {"metrics": self._metrics_record(state["iteration"])}
         tensors: dict[str, torch.Tensor] = {}
         tree = json.dumps(_encode(state, "", tensors))
         temporary = self.path / (CHECKPOINT + ".tmp")
@@ -182,6 +182,8 @@ class RunFolder:
 
     def _metrics_record(self, rows: int) -> dict | None:
         """The length and SHA-256 of metrics.csv's header and first ``rows`` rows; None where it has fewer."""
+        if isinstance(rows, bool) or not isinstance(rows, int) or rows < 0:
+            return None  # not a state of the loop's: refused when read
         for known in (self._rows, self._rows.before):
             if known is not None and known.count == rows:
                 return known.record()

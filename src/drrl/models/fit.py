@@ -36,6 +36,9 @@ from drrl.models.recurrent import WorldModel, window_losses
 MODEL_OPTIMIZERS = ("adam_lambda", "nag", "adam", "sgd")
 
 
+REPEATS = 8  # a fit's batch draws at most this many times the training windows it has
+
+
 @dataclass(frozen=True)
 class FitSettings:
     """How a world model is trained.
@@ -44,6 +47,7 @@ class FitSettings:
     learn_reward: train the reward and end heads (off when the task's reward is known in closed form).
     optimizer: "adam_lambda" (Algorithm 4, the default), "nag" (3.24), or torch's "adam" or "sgd".
     holdout: fraction of episodes held out for early stopping; validate_every updates; patience validations.
+    batch_size: windows drawn a step, at most REPEATS times the training windows (a run's first fits have few).
     max_grad_norm: gradient norm clipping against exploding gradients (3.5.2); None for none.
     """
 
@@ -152,7 +156,7 @@ def fit(
     best_state = [p.detach().clone() for p in parameters]
     since_best = torch.zeros(len(model), dtype=torch.long)
     stop, updates = "max_updates", 0
-    batch_size = min(settings.batch_size, int(train_counts.max()))  # a larger batch would only repeat windows
+    batch_size = min(settings.batch_size, REPEATS * int(train_counts.max()))  # more draws only repeat windows
     for updates in range(1, settings.max_updates + 1):
         positions = (torch.rand(len(model), batch_size, generator=generator) * train_counts[:, None]).long()
         index = train_index.gather(1, positions)

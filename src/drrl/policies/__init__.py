@@ -3,7 +3,7 @@
 from drrl.policies.base import Policy
 from drrl.policies.feedforward import FeedForward, linear, mlp, multilinear
 from drrl.policies.recurrent import LSTM, ElmanRNN, Recurrent, lstm, rnn
-from drrl.policies.spec import ACCEPTED_FORMS, POLICY_KINDS, make_policy
+from drrl.policies.spec import ACCEPTED_FORMS, POLICY_KINDS, make_policy, parse_spec
 
 __all__ = [
     "ACCEPTED_FORMS",
@@ -18,5 +18,6 @@ __all__ = [
     "make_policy",
     "mlp",
     "multilinear",
+    "parse_spec",
     "rnn",
 ]

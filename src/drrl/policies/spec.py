@@ -18,13 +18,22 @@ LAYERED = {"multilinear": multilinear, "mlp": mlp, "rnn": rnn, "lstm": lstm}  # 
 
 def make_policy(spec: str, observation_size: int, action_size: int) -> Policy:
     """Build the policy that ``spec`` names, for the given observation and action sizes."""
+    kind, widths = parse_spec(spec)
+    if kind == "linear":
+        return linear(observation_size, action_size, bias=widths != ["nobias"])
+    return LAYERED[kind](observation_size, action_size, widths)
+
+
+def parse_spec(spec: str) -> tuple[str, list]:
+    """A spec's kind and its layer widths (``linear``'s: [] or ["nobias"]); ValueError with the accepted forms for
+    anything else. What a run's settings check, before anything is built."""
     kind, _, arguments = spec.strip().partition(":")
     if kind == "linear":
         if arguments not in ("", "nobias"):
             raise _malformed(spec)
-        return linear(observation_size, action_size, bias=arguments != "nobias")
+        return kind, [arguments] if arguments else []
     if kind in LAYERED:
-        return LAYERED[kind](observation_size, action_size, _widths(spec, arguments))
+        return kind, _widths(spec, arguments)
     raise ValueError(f"unknown policy kind {kind[:40]!r}; accepted forms: {ACCEPTED_FORMS}")
 
 

@@ -36,7 +36,7 @@ from drrl.models.fit import MODEL_OPTIMIZERS, FitSettings
 from drrl.models.kinds import MODEL_KINDS
 from drrl.models.recurrent import FUTURE_INPUTS
 from drrl.models.recurrent import MODEL_KINDS as RECURRENT_KINDS
-from drrl.policies import ACCEPTED_FORMS
+from drrl.policies import ACCEPTED_FORMS, parse_spec
 from drrl.search.pgpe import FITNESS_SHAPINGS, OPTIMIZERS, SAMPLERS, check_whole_draws
 
 REWARD_MODES = ("auto", "known", "learned")
@@ -399,7 +399,7 @@ class ModelBasedSettings(Shifted):
     model_optimizer: str = choice("adam_lambda", MODEL_OPTIMIZERS, "the model's optimizer: NAG (3.24), Adam-λ, ...")
     model_lr: Float = Field(1e-2, gt=0, le=1e3, description="the model optimizer's step size")
     fit_batch_size: Int = Field(
-        128, ge=1, le=1_000_000, description="windows a gradient step (at most as many as the data hold)"
+        128, ge=1, le=1_000_000, description="windows a gradient step (at most 8 times the windows the data hold)"
     )
     fit_updates: Int = Field(1000, ge=1, le=10**7, description="most gradient steps of the first fit")
     refit_updates: Int = Field(
@@ -534,6 +534,12 @@ class RunSettings(Part):
     world: World = Field(
         default_factory=_default(ModelFreeSettings), description="where the search's returns come from"
     )
+
+    @field_validator("policy")
+    @classmethod
+    def _policy_spec(cls, spec: str) -> str:
+        parse_spec(spec)
+        return spec
 
     @field_validator("device")
     @classmethod

@@ -22,14 +22,15 @@ from drrl.rollout import Workload
 from drrl.rollout.local import LocalBackend
 from drrl.settings import TrainConfig
 from drrl.streams import Stream, derive_seed
-from drrl.training.loop import Counters, Setup
+from drrl.training.loop import UNITS, Counters, Setup
 from drrl.training.model_free import RealWorld, counted
 
 
 class ActionSpace(RealWorld[PolicyGradient]):
     """Every update from real episodes that explore by action, stepped here on ``backend``'s env."""
 
-    kind, unit = "action-space", "generation"
+    kind = "action-space"
+    unit = UNITS[kind]
     training = "exploring episodes, mean (actions drawn around μ)"
 
     def __init__(self, config: TrainConfig, policy: Policy, backend: LocalBackend, workload: Workload):

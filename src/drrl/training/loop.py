@@ -39,6 +39,7 @@ from drrl.search.base import Search
 from drrl.settings import ModelFreeSettings, TrainConfig, short_repr
 from drrl.streams import Stream, derive_seed
 
+UNITS = {"model-free": "generation", "model-based": "iteration", "action-space": "generation"}  # World.unit by kind
 MAX_COUNT = 2**53  # counts beyond it are not exact in metrics.csv's floats
 COUNTS = (
     "iteration",
@@ -356,6 +357,10 @@ def check_checkpoint(checkpoint: dict, kind: str) -> None:
     """Refuse a checkpoint this version cannot resume as a ``kind`` run, saying what is wrong with it."""
     if checkpoint.get("kind") != kind:
         raise ValueError(f"checkpoint is of kind {checkpoint.get('kind')!r} but the run's config is {kind!r}")
+    if checkpoint.get("unit") != UNITS[kind]:
+        raise ValueError(
+            f"checkpoint's unit is {short_repr(checkpoint.get('unit'))}; a {kind} run's is {UNITS[kind]!r}"
+        )
     missing = [
         key
         for key in (

@@ -55,7 +55,7 @@ from drrl.rollout import Backend, Evaluation, NonFiniteOutput, Workload, evaluat
 from drrl.search.base import Search
 from drrl.settings import ModelBasedSettings, TrainConfig
 from drrl.streams import Stream, derive_seed, imagined_seed
-from drrl.training.loop import Counters, Setup, World, run_generation
+from drrl.training.loop import UNITS, Counters, Setup, World, run_generation
 
 
 class ModelBased(World[Search]):
@@ -66,7 +66,8 @@ class ModelBased(World[Search]):
     of tens), so a second thread costs more in hand-offs than it gains, and leaves the other core to the machine.
     """
 
-    kind, unit = "model-based", "iteration"
+    kind = "model-based"
+    unit = UNITS[kind]
     training = "real episodes collected, mean"
 
     def __init__(

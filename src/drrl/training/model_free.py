@@ -41,7 +41,7 @@ from drrl.rollout.moments import Moments
 from drrl.search.base import Search
 from drrl.settings import ModelBasedSettings, ModelFreeSettings, TrainConfig
 from drrl.streams import Stream, derive_seed
-from drrl.training.loop import Counters, L, Setup, World, attempt_ended, run_generation
+from drrl.training.loop import UNITS, Counters, L, Setup, World, attempt_ended, run_generation
 
 
 class RealWorld(World[L]):
@@ -110,7 +110,8 @@ class ModelFree(RealWorld[Search]):
     """Every generation on the real environment, through ``backend`` (here, or on a Ray cluster); with
     ``restart_every``, ``new_search(attempt)`` is each later attempt's search."""
 
-    kind, unit = "model-free", "generation"
+    kind = "model-free"
+    unit = UNITS[kind]
 
     def __init__(
         self,
