@@ -116,7 +116,8 @@ def damage(folder: Path, rng: random.Random) -> None:
         state = run.load_checkpoint()
         key = rng.choice(sorted(key for key in state if key not in ("search", "world", "config")))
         state[key] = rng.choice([None, -1, 0, 1, 99, 2**60, -1e9, 1.5, float("nan"), "abc", True, [], {}])
-        run._metrics_record = lambda rows, kept=state.get("metrics"): kept  # the record as it was
+        kept = state.get("metrics")
+        run._metrics_record = lambda rows: kept  # the record as it was
         run.save_checkpoint(state)
 
 
