@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import random
 import shutil
 import tempfile
@@ -31,10 +32,11 @@ from click.testing import CliRunner
 from pydantic import ValidationError
 
 from drrl.cli import main
-from drrl.runs import CHECKPOINT, CONFIG, METRICS
+from drrl.runs import CHECKPOINT, CONFIG, METRICS, RunFolder
 from drrl.settings import TrainConfig, describe_errors, load_config_file
 from drrl.training.train import prepare
 
+FORGED = [None, -1, 0, 1, 7, 99, 2**60, 10**30, -1e9, 1.5, float("nan"), float("inf"), "abc", True, [], {}]
 FIELDS = [*TrainConfig.model_fields, "popsise", "model-based"]
 NASTY = [
     None,
@@ -155,8 +157,65 @@ def sweep_files(rng: random.Random, count: int, folder: Path) -> Counter:
     return results
 
 
-def damage(rng: random.Random, run: Path) -> str:
-    """One random damage to ``run``; its name."""
+NUMBERS = ["8", "0", "-1", "1e3", "nan", "inf", "٨", "1_0", " 8 ", "", "9" * 25, "9" * 5000, "0x10", "8.0", "true"]
+TRAIN_FLAGS = ["--popsize", "--budget", "--seed", "--workers", "--eval-episodes", "--sigma-init", "--max-steps"]
+EVAL_FLAGS = ["--episodes", "--seed", "--env"]
+
+
+def sweep_flags(rng: random.Random, count: int, folder: Path) -> dict[str, Counter]:
+    """Random values for the number and name options of drrl train (its settings shown, nothing trained) and drrl
+    eval: accepted or refused in one line, never a traceback."""
+    run = folder / "flags-run"
+    CliRunner().invoke(main, ["train", "cartpole", "--budget", "16", "--quiet", "--out", str(run)])
+    results = {"train": Counter(), "eval": Counter()}
+    for _ in range(count):
+        value = rng.choice([*NUMBERS, str(rng.choice(NASTY)), "Pixels/" * rng.randint(1, 300) + "CartPole-v1"])
+        if rng.random() < 0.5:
+            results["train"][
+                command(["train", "cartpole", rng.choice(TRAIN_FLAGS), value, "--show-settings"], run)
+            ] += 1
+        else:
+            episodes = ["--episodes", "2"] if "--episodes" not in value else []
+            results["eval"][command(["eval", str(run), *episodes, rng.choice(EVAL_FLAGS), value], run)] += 1
+    return results
+
+
+def sweep_places(rng: random.Random, count: int, folder: Path) -> Counter:
+    """Places to write that cannot hold what is written (a name or path too long, under a file, /proc, a FIFO, a
+    device) or can: drrl train --out and drrl render --out refuse the first in one line, and write the second."""
+    (folder / "a-file").write_text("")
+    os.mkfifo(folder / "a-fifo")
+    run = folder / "places-run"
+    CliRunner().invoke(main, ["train", "cartpole", "--budget", "16", "--quiet", "--out", str(run)])
+    results = Counter()
+    for number in range(count):
+        place = rng.choice(
+            [
+                folder / ("n" * rng.randint(200, 300)),
+                folder / "/".join(["d" * 200] * rng.randint(15, 25)),
+                folder / "a-file" / "below",
+                folder / "a-fifo",
+                Path("/proc") / f"drrl{number}",
+                Path("/dev/null") / "x",
+                folder / "new" / str(number) / "deeper",
+            ]
+        )
+        what = rng.choice(["train", "render"])
+        target = place if what == "train" else place.with_suffix(".gif")
+        args = (
+            ["train", "cartpole", "--budget", "8", "--popsize", "8", "--quiet", "--out", str(target)]
+            if what == "train"
+            else ["render", str(run), "--out", str(target), "--max-steps", "3"]
+        )
+        got = command(args, run)
+        if got == "accepted" and not (target / CHECKPOINT if what == "train" else target).is_file():
+            got = f"silent acceptance: {what} claimed to write {str(target)[:60]}"
+        results[got] += 1
+    return results
+
+
+def damage(rng: random.Random, run: Path, other: Path) -> str:
+    """One random damage to ``run`` (``other``: another run of its kind); its name."""
     checkpoint, config = run / CHECKPOINT, run / CONFIG
     kind = rng.choice(
         [
@@ -168,6 +227,9 @@ def damage(rng: random.Random, run: Path) -> str:
             "rename digest",
             "remove file",
             "cut metrics",
+            "forge checkpoint",
+            "edit metrics",
+            "another run's metrics",
         ]
     )
     if kind == "truncate":
@@ -190,71 +252,93 @@ def damage(rng: random.Random, run: Path) -> str:
         from safetensors.torch import save_file
 
         with safe_open(checkpoint, framework="pt") as handle:
-            tensors = {key: handle.get_tensor(key) for key in handle}
+            tensors = {key: handle.get_tensor(key) for key in handle.keys()}  # noqa: SIM118 (not iterable)
             metadata = handle.metadata()
         metadata["sha257"] = metadata.pop("sha256")
         save_file(tensors, checkpoint, metadata=metadata)
     elif kind == "remove file":
         (run / rng.choice([CHECKPOINT, CONFIG, METRICS])).unlink()
+    elif kind == "forge checkpoint":  # an entry edited and the digest recomputed, as drrl's own writer would
+        folder = RunFolder(run)
+        state = folder.load_checkpoint()
+        state[rng.choice(sorted(set(state) - {"search", "world", "config"}))] = rng.choice(FORGED)
+        kept = state.get("metrics")
+        folder._metrics_record = lambda rows: kept
+        folder.save_checkpoint(state)
+    elif kind == "edit metrics":
+        lines = (run / METRICS).read_text().splitlines(keepends=True)
+        at = rng.randrange(len(lines))
+        cells = lines[at].rstrip("\r\n").split(",")
+        cells[rng.randrange(len(cells))] = str(rng.choice(FORGED))
+        lines[at] = ",".join(cells) + "\r\n"
+        (run / METRICS).write_text("".join(lines))
+    elif kind == "another run's metrics":
+        shutil.copy(other / METRICS, run / METRICS)
     else:
         lines = (run / METRICS).read_text().splitlines(keepends=True)
         (run / METRICS).write_text("".join(lines[: rng.randrange(len(lines))]))
     return kind
 
 
-def command(args: list[str]) -> str:
+def command(args: list[str], run: Path, expected: str | None = None) -> str:
+    """ "accepted" (with the output ``expected``, the run folder's path written RUN, where given), "refused", or a
+    defect."""
     result = CliRunner().invoke(main, args)
     if result.exit_code == 0:
-        return "accepted"
+        same = expected is None or result.output.replace(str(run), "RUN") == expected
+        return "accepted" if same else "silent acceptance"
     if isinstance(result.exception, SystemExit) and "Traceback" not in result.output:
         return "refused"
     text = "".join(traceback.format_exception(result.exception))[-200:] if result.exception else result.output
     return f"traceback: {text!r}"
 
 
-def unchanged(original: Path, damaged: Path, read: tuple[str, ...]) -> bool:
-    """Whether the damage left the files a command reads (``read``) meaning what they meant: the same config
-    values, the same checkpoint and metrics bytes."""
-
-    def meaning(run: Path, name: str):
-        data = (run / name).read_bytes()
-        try:
-            return json.loads(data) if name == CONFIG else data
-        except ValueError:
-            return data
-
-    return all((damaged / name).exists() and meaning(original, name) == meaning(damaged, name) for name in read)
-
-
 def sweep_folders(rng: random.Random, count: int, folder: Path) -> dict[str, Counter]:
-    finished = {}
+    """Damaged copies of finished runs through eval, resume and render: accepted only with the output the
+    undamaged run gives (eval's measurement, resume's "complete", render's episode), else a silent acceptance."""
+    finished, others = {}, {}
     for kind, extra in (
         ("model-free", ["--budget", "24"]),
         ("model-based", ["--model-based", "--budget", "4", "--generations-per-iteration", "2", "--model-hidden", "8"]),
     ):
-        finished[kind] = folder / kind
-        result = CliRunner().invoke(
-            main, ["train", "cartpole", *extra, "--eval-episodes", "3", "--quiet", "--out", str(finished[kind])]
-        )
-        assert result.exit_code == 0, result.output
-    results = {name: Counter() for name in ("eval", "resume", "render")}
+        for seed, made in (("0", finished), ("1", others)):
+            made[kind] = folder / f"{kind}-{seed}"
+            result = CliRunner().invoke(
+                main,
+                [
+                    "train",
+                    "cartpole",
+                    *extra,
+                    "--eval-episodes",
+                    "3",
+                    "--seed",
+                    seed,
+                    "--quiet",
+                    "--out",
+                    str(made[kind]),
+                ],
+            )
+            assert result.exit_code == 0, result.output
+    video = folder / "video.gif"
+    args = {
+        "eval": lambda run: ["eval", str(run), "--episodes", "3"],
+        "resume": lambda run: ["train", "--resume", str(run), "--quiet"],
+        "render": lambda run: ["render", str(run), "--out", str(video), "--max-steps", "5"],
+    }
+    expected = {
+        (kind, name): CliRunner().invoke(main, make(run)).output.replace(str(run), "RUN")
+        for kind, run in finished.items()
+        for name, make in args.items()
+    }
+    results = {name: Counter() for name in args}
     for number in range(count):
         kind = rng.choice(list(finished))
-        for name in results:
+        for name, make in args.items():
             run = folder / f"damaged{number}-{name}"
             shutil.copytree(finished[kind], run)
-            rng_copy = random.Random(number)  # the same damage for the three commands
-            what = damage(rng_copy, run)
-            args = {
-                "eval": ["eval", str(run), "--episodes", "3"],
-                "resume": ["train", "--resume", str(run), "--quiet"],
-                "render": ["render", str(run), "--out", str(folder / f"video{number}.gif"), "--max-steps", "5"],
-            }
-            got = command(args[name])
-            read = (CONFIG, CHECKPOINT, METRICS) if name == "resume" else (CONFIG, CHECKPOINT)
-            if got == "accepted" and not unchanged(finished[kind], run, read):
-                got = f"silent acceptance: {what}"
-            results[name][got] += 1
+            what = damage(random.Random(number), run, others[kind])  # the same damage for the three commands
+            got = command(make(run), run, expected[kind, name])
+            results[name][f"{got}: {what}" if got.startswith("silent") else got] += 1
             shutil.rmtree(run, ignore_errors=True)
     return results
 
@@ -276,6 +360,8 @@ def main_() -> None:
     parser.add_argument("--settings", type=int, default=3000)
     parser.add_argument("--files", type=int, default=2000)
     parser.add_argument("--folders", type=int, default=300)
+    parser.add_argument("--flags", type=int, default=1000)
+    parser.add_argument("--places", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     rng = random.Random(args.seed)
@@ -286,6 +372,9 @@ def main_() -> None:
     table("damaged config files (drrl train --config)", sweep_files(rng, args.files, folder))
     for name, results in sweep_folders(rng, args.folders, folder).items():
         table(f"damaged run folders: drrl {name}", results)
+    for name, results in sweep_flags(rng, args.flags, folder).items():
+        table(f"flags of drrl {name}", results)
+    table("places to write (train --out, render --out)", sweep_places(rng, args.places, folder))
     shutil.rmtree(folder, ignore_errors=True)
 
 

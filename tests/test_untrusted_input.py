@@ -333,3 +333,14 @@ def test_a_ray_address_is_checked_for_its_port_and_what_answers_there():
     finally:
         server.shutdown()
     assert time.perf_counter() - start < CONNECT_TIMEOUT + 5
+
+
+def test_an_interrupt_before_the_first_checkpoint_says_how_to_start_again(tmp_path, monkeypatch):
+    def interrupted(self, state):
+        raise KeyboardInterrupt  # the moment config.json is written, before the first checkpoint
+
+    monkeypatch.setattr(RunFolder, "save_checkpoint", interrupted)
+    result = drrl("train", "cartpole", "--budget", 16, "--out", tmp_path / "run", "--quiet")
+    one_line_refusal(result, 1, "interrupted before the first checkpoint")
+    assert f"start it again with: drrl train --resume {tmp_path / 'run'}" in result.output
+    assert sorted(path.name for path in (tmp_path / "run").iterdir()) == [CONFIG]
