@@ -75,6 +75,14 @@ def test_a_config_that_is_not_a_regular_file_is_refused_without_reading_it(tmp_p
         (["train", "cartpole", "--workers", "1e3"], "'1e3' is not a whole number ≥ 1"),
         (["train", "cartpole", "--seed", "9" * 5000], "has 5000 digits"),
         (["compare", "--budget", "nan"], "'nan' is not a whole number ≥ 1"),
+        (["train", "cartpole", "--search", "reinforce", "--sigma-init", "1e-320"], "a smaller σ is 0 in float32"),
+        (["train", "cartpole", "--model-based", "--model-hidden", "٦٤"], "'٦٤' is not a whole number in the digits"),
+        (["train", "cartpole", "--model-based", "--model-hidden", "1_0"], "'1_0' is not a whole number in the digits"),
+        (
+            ["train", "cartpole", "--model-based", "--set", "model_based.exploration_bonus=1e308"],
+            "model_based.exploration_bonus: Input should be less than or equal to 1000000",
+        ),
+        (["train", "cartpole", "--backend", "ray", "--address", "[::1]:99999"], "port 99999 is out of range"),
     ],
 )
 def test_a_bad_number_flag_says_what_is_allowed(args, message):
@@ -344,3 +352,23 @@ def test_an_interrupt_before_the_first_checkpoint_says_how_to_start_again(tmp_pa
     one_line_refusal(result, 1, "interrupted before the first checkpoint")
     assert f"start it again with: drrl train --resume {tmp_path / 'run'}" in result.output
     assert sorted(path.name for path in (tmp_path / "run").iterdir()) == [CONFIG]
+
+
+def test_a_folder_that_lost_its_checkpoint_after_training_is_refused_not_started_again(copy):
+    (copy / CHECKPOINT).unlink()
+    one_line_refusal(drrl("train", "--resume", copy), 1, "has no checkpoint (checkpoint.safetensors)")
+    assert (copy / METRICS).exists()
+
+
+def test_a_fit_batch_too_big_for_memory_is_refused_before_any_work(tmp_path):
+    result = drrl(
+        *("train", "cartpole", "--model-based", "--set", "model_based.fit_batch_size=1000000", "--set"),
+        *("model_based.ensemble_size=5", "--set", "model_based.hidden=[4096]", "--out", tmp_path / "run"),
+    )
+    one_line_refusal(result, 2, "the world model and its fitting batch")
+    assert not (tmp_path / "run").exists()
+
+
+def test_an_environment_variable_is_checked_as_its_flag_is(monkeypatch):
+    monkeypatch.setenv("DRRL_DEBUG", "maybe")
+    one_line_refusal(drrl("train", "cartpole", "--show-settings"), 2, "'maybe' is not a valid boolean")

@@ -207,8 +207,9 @@ class RunFolder:
         return read_checkpoint(file)
 
     def stopped_before_its_first_checkpoint(self) -> bool:
-        """Whether the folder holds a run's settings but no checkpoint: it was stopped (killed) while starting."""
-        return (self.path / CONFIG).is_file() and not (self.path / CHECKPOINT).exists()
+        """Whether the folder holds a run's settings but neither a checkpoint nor metrics (the first checkpoint comes
+        before the first row): it was stopped (killed) while starting, not damaged later."""
+        return (self.path / CONFIG).is_file() and not any((self.path / name).exists() for name in (CHECKPOINT, METRICS))
 
     def load_run(self) -> tuple[TrainConfig, dict[str, Any]]:
         """config.json and the checkpoint, refused unless the checkpoint was trained with exactly these settings
