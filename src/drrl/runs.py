@@ -3,8 +3,8 @@
 Checkpoints are one safetensors file: the tensors of a nested state, with everything else as JSON in the file's
 metadata, and a SHA-256 digest of both, so that a damaged file is refused rather than loaded. A checkpoint also
 records the length and SHA-256 of the metrics rows it has seen, so that a folder is resumed only with those rows.
-Nothing is ever pickled. Checkpoints and config.json are written to a temporary file and renamed, so a run killed while writing
-keeps the previous version.
+Nothing is ever pickled. Checkpoints and config.json are written to a temporary file and renamed, so a run killed
+while writing keeps the previous version.
 """
 
 from __future__ import annotations
