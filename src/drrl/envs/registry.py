@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import os
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -153,7 +155,12 @@ def _can_make(name: str) -> bool:
 
 def lookup(name: str) -> EnvEntry:
     """The entry for ``name``: an alias such as ``cartpole``, a member of a family such as ``Pixels/Pendulum-v1``,
-    or any registered Gymnasium id."""
+    any registered Gymnasium id, or Gymnasium's ``module:ID``, an id that importing ``module`` registers (a user's
+    own env: run folders record the name, so eval, render and resume import the module again)."""
+    module, colon, rest = name.partition(":")
+    if colon:
+        import_registering(module, name)
+        name = rest
     env_id = aliases().get(name, name)
     member = _member(env_id)
     if member is not None:
@@ -174,6 +181,21 @@ def lookup(name: str) -> EnvEntry:
             f"{', or '.join(prefix + 'ID' for prefix in FAMILIES)} to see one of them through its camera"
         )
     return ENTRIES.get(env_id) or gymnasium_entry(env_id)
+
+
+def import_registering(module: str, name: str) -> None:
+    """Import ``module``, which registers envs with Gymnasium, from the Python path or the working folder (as
+    ``python -m`` would see it); whatever stops the import is one ValueError naming the module."""
+    if not module.replace(".", "").replace("_", "").isalnum():
+        raise ValueError(f"{name[:80]!r}: {module[:40]!r} is not a Python module name (MODULE:ID, e.g. my_envs:Arm-v0)")
+    if "" not in sys.path and os.getcwd() not in sys.path:
+        sys.path.append(os.getcwd())
+    try:
+        importlib.import_module(module)
+    except Exception as error:  # the user's module: any error in it is theirs to see, in one line
+        raise ValueError(
+            f"cannot import {module!r} for the env {name[:80]!r}: {type(error).__name__}: {error}"
+        ) from None
 
 
 def _listed(names) -> str:
