@@ -1,3 +1,4 @@
+import numpy as np
 import pytest
 import torch
 from safetensors.torch import save_file
@@ -160,3 +161,14 @@ def test_the_k_step_error_figure_reads_cleanly():
 
     figure = k_step_figure({"m = 0": np.geomspace(0.1, 30, 20), "overshooting": np.geomspace(0.1, 3, 20)}, "errors")
     assert_reads_cleanly(figure)
+
+
+def test_a_method_measured_once_is_drawn_as_a_marker():
+    from drrl.compare import Curve, comparison_figure
+
+    one = np.array([16.0])
+    two = np.array([16.0, 32.0])
+    curves = [Curve("ppo", one, one - 300, one - 310, one - 290, 1), Curve("pgpe", two, two, two, two, 1)]
+    figure = comparison_figure(curves, "cartpole", 50)
+    ppo, pgpe = figure.axes[0].get_lines()
+    assert ppo.get_marker() == "o" and ppo.get_xdata().tolist() == [16.0] and pgpe.get_marker() in ("None", None, "")

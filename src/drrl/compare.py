@@ -191,9 +191,9 @@ def plot(curves: list[Curve], path: Path, env: str, eval_episodes: int) -> None:
 
 
 def comparison_figure(curves: list[Curve], env: str, eval_episodes: int):
-    """Each method's mean centre return and its ±1 s.e. band against real episodes (log axis, ticks at 1, 2, 5,
-    10, 20, ... episodes, thousands written 1k, 2k, ... so that they do not run into each other). A matplotlib
-    figure."""
+    """Each method's mean centre return and its ±1 s.e. band against real episodes (a method of one measurement as a
+    marker; log axis, ticks at 1, 2, 5, 10, 20, ... episodes, thousands written 1k, 2k, ... so that they do not run
+    into each other). A matplotlib figure."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -206,6 +206,7 @@ def comparison_figure(curves: list[Curve], env: str, eval_episodes: int):
             curve.real_episodes,
             curve.mean,
             where="post",
+            marker="o" if len(curve.real_episodes) == 1 else None,  # a step of one point draws nothing
             label=f"{curve.method} ({curve.seeds} seed{'s' * (curve.seeds > 1)})",
         )
         axes.fill_between(curve.real_episodes, curve.low, curve.high, step="post", alpha=0.2, color=line.get_color())
