@@ -8,6 +8,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 from gymnasium.utils.env_checker import check_env
 
 import drrl  # noqa: F401  (registers drrl/CartPole-v0)
@@ -390,3 +391,14 @@ def test_lqr_at_upright_balances_all_50_starts():
         returns += reward
     assert truncated.all()
     assert -50.0 < returns.mean() < -32.0
+
+
+def test_the_balance_verdict_says_what_each_criterion_needs():
+    from drrl.envs.cartpole import balance_verdict, explain_balance
+
+    returns, ended = torch.full((1, 50), -45.1), torch.zeros(1, 50, dtype=torch.bool)
+    ended[0, 0] = True  # 49 of 50 up, a mean return above -50: neither balanced nor near-optimal
+    assert balance_verdict(returns, ended) == {"balanced": False, "near_optimal": False}
+    explained = explain_balance(returns, ended)
+    assert "49/50 episodes kept the pole up" in explained and "balanced needs all 50" in explained
+    assert "near-optimal needs balanced and a mean return ≥ -50" in explained

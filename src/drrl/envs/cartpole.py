@@ -523,10 +523,11 @@ def balance_verdict(episode_returns, terminated) -> dict[str, bool]:
 
 
 def explain_balance(episode_returns, terminated) -> str:
-    kept = int((~terminated).sum())
+    """What each verdict requires, beside how many episodes kept the pole up."""
+    kept, episodes = int((~terminated).sum()), terminated.numel()
     return (
-        f"({kept}/{terminated.numel()} episodes kept the pole up for all {BalanceTask.horizon} steps; "
-        f"near-optimal needs a mean return ≥ {NEAR_OPTIMAL_RETURN:g})"
+        f"({kept}/{episodes} episodes kept the pole up for all {BalanceTask.horizon} steps; balanced needs all "
+        f"{episodes}, near-optimal needs balanced and a mean return ≥ {NEAR_OPTIMAL_RETURN:g})"
     )
 
 
