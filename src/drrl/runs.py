@@ -148,7 +148,7 @@ class RunFolder:
         except OSError as error:
             raise ValueError(f"cannot read {file}: {error.strerror}") from None
         if record is None:  # an older drrl's checkpoint: the rows are checked for their order only
-            kept = b"".join(data.splitlines(keepends=True)[: generations + 1]) if generations else b""
+            kept = _first_rows(data, generations)
         else:
             kept = data[: record["bytes"]]
             if record["rows"] != generations or hashlib.sha256(kept).hexdigest() != record["sha256"]:
@@ -190,10 +190,9 @@ class RunFolder:
                 return known.record()
         file = self.path / METRICS
         data = file.read_bytes() if file.exists() else b""
-        lines = data.splitlines(keepends=True)
-        if rows and len(lines) <= rows:
+        if rows and len(data.splitlines()) <= rows:
             return None
-        kept = b"".join(lines[: rows + 1]) if rows else b""
+        kept = _first_rows(data, rows)
         return Rows(rows, hashlib.sha256(kept), len(kept)).record()
 
     def load_checkpoint(self) -> dict[str, Any]:
@@ -278,6 +277,11 @@ class Rows:
 
     def record(self) -> dict:
         return {"rows": self.count, "bytes": self.size, "sha256": self.digest.hexdigest()}
+
+
+def _first_rows(data: bytes, rows: int) -> bytes:
+    """metrics.csv's header and first ``rows`` rows, as written; nothing for none."""
+    return b"".join(data.splitlines(keepends=True)[: rows + 1]) if rows else b""
 
 
 def parse_metrics(file: Path, data: bytes) -> list[dict[str, float]]:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from drrl.settings import short_repr
+
 MAX_DIGITS = 20  # a whole number of more digits is a typo, and Python refuses to read one of over 4,300
 
 
@@ -22,10 +24,12 @@ class AsciiInt(click.ParamType):
         text = str(value).strip()
         digits = text.removeprefix("-").removeprefix("+")
         if not (digits.isascii() and digits.isdigit()):
-            self.fail(f"{short(value)!r} is not {self._allowed()}", param, ctx)
+            self.fail(f"{short_repr(str(value), 40)} is not {self._allowed()}", param, ctx)
         if len(digits) > MAX_DIGITS:
             self.fail(
-                f"{short(value)!r} has {len(digits)} digits; {self._allowed()} has at most {MAX_DIGITS}", param, ctx
+                f"{short_repr(str(value), 40)} has {len(digits)} digits; {self._allowed()} has at most {MAX_DIGITS}",
+                param,
+                ctx,
             )
         return self._within(int(text), param, ctx)
 
@@ -40,12 +44,6 @@ class AsciiInt(click.ParamType):
         if self.low is not None:
             return f"a whole number ≥ {self.low}"
         return "a whole number in the digits 0-9"
-
-
-def short(value, limit: int = 40) -> str:
-    """``str(value)`` cut to ``limit`` characters, for a one-line message."""
-    text = str(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 INTEGER = AsciiInt()

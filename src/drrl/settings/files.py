@@ -28,9 +28,12 @@ def load_config_file(path: Path) -> dict:
         raise ValueError(f"config file {path} is not valid {kind}: {error}") from None
     except RecursionError:
         raise ValueError(f"config file {path} nests its tables too deeply to be a drrl config") from None
-    except ValueError as error:  # a key twice, or a number of over 4,300 digits (Python's limit)
-        why = str(error) if "twice" in str(error) else "it holds a number too long to be a setting"
-        raise ValueError(f"config file {path} is not a drrl config: {why}") from None
+    except RepeatedKey as error:
+        raise ValueError(f"config file {path} is not a drrl config: {error}") from None
+    except ValueError:  # a number of over 4,300 digits (Python's limit on reading one)
+        raise ValueError(
+            f"config file {path} is not a drrl config: it holds a number too long to be a setting"
+        ) from None
     if not isinstance(settings, dict):
         raise ValueError(
             f"config file {path} must hold an object of settings (name: value), not a {type(settings).__name__}"
@@ -56,12 +59,16 @@ def read_text(path: Path, what: str, limit: int, kind: str = "text") -> str:
         raise ValueError(f"{what} is not {kind} text: byte {error.start} is not UTF-8") from None
 
 
+class RepeatedKey(ValueError):
+    """A JSON object gives one key twice."""
+
+
 def _once_each(pairs: list[tuple[str, object]]) -> dict:
     """A JSON object whose keys are all different (json.loads would keep the last of a key given twice)."""
     settings: dict = {}
     for key, value in pairs:
         if key in settings:
-            raise ValueError(f"{key!r} is given twice")
+            raise RepeatedKey(f"{key!r} is given twice")
         settings[key] = value
     return settings
 

@@ -252,9 +252,7 @@ def prepare_resume(
     folder.claim()
     try:
         if folder.stopped_before_its_first_checkpoint():
-            setup = prepare(folder.read_config(), backend, address, workers, resuming=True)
-            folder.truncate_metrics(0)
-            return setup, None
+            return prepare(folder.read_config(), backend, address, workers, resuming=True), None
         config, checkpoint = open_run(folder)
         setup = prepare(config, backend, address, workers, resuming=True)
     except BaseException:
