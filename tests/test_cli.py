@@ -4,6 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import click
 import gymnasium
 import numpy as np
 import pytest
@@ -288,7 +289,7 @@ def test_an_occupied_out_is_refused_before_any_work_and_a_refused_run_leaves_no_
 
 
 def test_a_run_told_to_stop_when_solved_spends_no_real_episode_past_its_solved_centre(tmp_path):
-    result, out = train(tmp_path, "cartpole", "--budget", "3000", "--eval-share", "1", "--stop-when-solved", "true")
+    result, out = train(tmp_path, "cartpole", "--budget", "3000", "--eval-share", "1", "--stop-when-solved")
     rows = metrics(out)
     criteria = ("balanced", "near_optimal")
     assert result.exit_code == 0, result.output
@@ -298,12 +299,12 @@ def test_a_run_told_to_stop_when_solved_spends_no_real_episode_past_its_solved_c
     assert int(rows[-1]["real_episodes"]) < 3000
     resumed = CliRunner().invoke(main, ["train", "--resume", str(out)])
     assert resumed.exit_code == 0 and metrics(out) == rows  # solved: nothing more to do
-    refused, _ = train(tmp_path, "Walker2d-v5", "--stop-when-solved", "true", name="walker")
+    refused, _ = train(tmp_path, "Walker2d-v5", "--stop-when-solved", name="walker")
     assert refused.exit_code == 2 and "stop_when_solved: Walker2d-v5 has no verdict" in refused.output
 
 
 def test_a_run_told_to_stop_after_solved_measurements_in_a_row_stops_at_the_first_such_streak(tmp_path):
-    first, _ = train(tmp_path, "cartpole", "--budget", "3000", "--eval-share", "1", "--stop-when-solved", "true")
+    first, _ = train(tmp_path, "cartpole", "--budget", "3000", "--eval-share", "1", "--stop-when-solved")
     result, out = train(
         tmp_path,
         "cartpole",
@@ -312,7 +313,6 @@ def test_a_run_told_to_stop_after_solved_measurements_in_a_row_stops_at_the_firs
         "--eval-share",
         "1",
         "--stop-when-solved",
-        "true",
         "--solved-in-a-row",
         "3",
         name="streak",
@@ -434,3 +434,16 @@ def test_a_nan_environment_stops_a_model_based_run_in_one_message(tmp_path):
     )
     assert result.exit_code == 1 and "non-finite reward" in result.output, result.output
     assert "Traceback" not in result.output and "run folder and checkpoint (iteration 0) kept" in result.output
+
+
+@pytest.mark.parametrize("command", [[], *([name] for name in main.commands)])
+def test_every_command_s_help_describes_each_option_in_plain_words(command):
+    helped = CliRunner().invoke(main, [*command, "--help"], terminal_width=200)
+    assert helped.exit_code == 0, helped.output
+    for token in ("{", "None]", "BOOLEAN", "``"):  # a Python repr, an unset default, a value for on/off, RST
+        assert token not in helped.output, f"drrl {' '.join(command)} --help shows {token!r}"
+    group = main.commands[command[0]] if command else main
+    for option in group.params:
+        if isinstance(option, click.Option):
+            assert option.help, f"drrl {' '.join(command)} {option.opts[0]} has no description"
+            assert option.is_flag or option.type is not click.BOOL, f"{option.opts[0]} takes true/false: a flag"

@@ -120,7 +120,7 @@ def test_training_improves_the_thesis_cart_pole_and_resumes_exactly(tmp_path, me
     ("args", "said"),
     [
         (["--model-based"], "search: 'enac' is not one of: 'pgpe', 'cmaes', 'sep-cmaes'"),
-        (["--observation-norm", "true"], "observation_norm: a setting of model-free runs, not of action-space ones"),
+        (["--observation-norm"], "observation_norm: a setting of model-free runs, not of action-space ones"),
         (["--backend", "ray"], "use the local backend"),
     ],
 )

@@ -63,7 +63,10 @@ def main(ctx: click.Context, debug: bool) -> None:
 @main.command("train")
 @click.argument("env_name", required=False, metavar="[ENV]")
 @click.option(
-    "--env", "env_option", help=f"Environment: {', '.join(aliases())} or any Gymnasium id (e.g. Pendulum-v1)."
+    "--env",
+    "env_option",
+    help=f"the environment, the same as ENV (give one): {', '.join(aliases())}, any Gymnasium id (e.g. Pendulum-v1) "
+    "or MODULE:ID for an env that registers itself when MODULE is imported  [default: cartpole]",
 )
 @click.option(
     "--config",
@@ -111,8 +114,8 @@ def train_command(
     show_settings,
     **options,
 ) -> None:
-    """Train a policy on an environment: `drrl train cartpole`, model-based with `--model-based`; `drrl train
-    --resume RUN` continues a stopped run."""
+    """Train a policy on ENV (a drrl task, a Gymnasium id or MODULE:ID; --env names it too): `drrl train cartpole`,
+    model-based with `--model-based`; `drrl train --resume RUN` continues a stopped run."""
     if resume_path is not None:
         given = [
             name
@@ -121,11 +124,11 @@ def train_command(
                 ("--env", env_option),
                 ("--config", config_file),
                 ("--out", out),
-                ("--model-based", model_based),
+                ("--model-based", model_based or None),
                 ("--set", assignments),
                 *((FLAGS.get(key.replace("__", "."), "--search"), value) for key, value in options.items()),
             ]
-            if value not in (None, False, ())
+            if value is not None and value != ()
         ]
         if given:
             raise click.UsageError(
@@ -329,7 +332,7 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
     """Run a trained centre policy over fresh episodes and report how it does.
 
     By default the centre policy that measured best during training; its measurement chose it, so it is measured
-    again here on new episodes. ``--env`` measures it on another env with the same spaces: how it transfers.
+    again here on new episodes. `--env` measures it on another env with the same spaces: how it transfers.
     """
     run = RunFolder(run_path)
     try:

@@ -78,12 +78,14 @@ WIDTHS = Widths()
 
 def help_of(setting: FlatSetting) -> str:
     default = default_of(setting)
-    shown = (
-        ""
-        if default is None
-        else f"  [default: {','.join(map(str, default)) if isinstance(default, tuple) else default}]"
-    )
+    shown = "" if default is None else f"  [default: {_shown(default)}]"
     return f"{setting.field.description or ''}{shown}"  # a task's preset may set it otherwise: --show-settings
+
+
+def _shown(default) -> str:
+    if isinstance(default, bool):
+        return "on" if default else "off"
+    return ",".join(map(str, default)) if isinstance(default, tuple) else str(default)
 
 
 def default_of(setting: FlatSetting):
@@ -137,10 +139,11 @@ def _key(name: str) -> str:
 
 
 def _option(name: str, flag: str):
-    """The option of the flat setting ``name``: a world model's on/off setting is a flag, the rest take a value."""
+    """The option of the flat setting ``name``: an on/off setting is ``--flag/--no-flag`` (unset where neither is
+    given, so that a file or preset decides), the rest take a value."""
     kind = _param_type(FLAT[name])
-    if kind is click.BOOL and name.startswith(f"{TABLE}."):
-        return click.option(flag, _key(name), is_flag=True, default=None, help=help_of(FLAT[name]))
+    if kind is click.BOOL:
+        return click.option(f"{flag}/--no-{flag[2:]}", _key(name), default=None, help=help_of(FLAT[name]))
     return click.option(flag, _key(name), type=kind, help=help_of(FLAT[name]))
 
 
