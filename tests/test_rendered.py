@@ -12,7 +12,7 @@ import drrl.envs  # noqa: F401  (registers the envs and the Pixels/ family)
 from drrl.cli import main
 from drrl.envs.batch import choose_engine, is_frames, make_batch_env
 from drrl.envs.registry import lookup
-from drrl.envs.rendered import GreyFrames
+from drrl.envs.rendered import GreyFrames, following_env, rendering_env
 from drrl.runs import RunFolder
 from drrl.training.train import train
 
@@ -68,6 +68,26 @@ def test_pixels_pendulum_is_the_pendulum_observed_by_its_last_two_frames():
         observations, _ = batch.reset(seed=[3, 4, 5])
         assert np.array_equal(observations[0], env.reset(seed=3)[0])
         batch.close()
+
+
+def test_a_runner_that_runs_off_stays_in_the_frame_of_its_tracking_camera():
+    def cheetah_pixels(env: gym.Env) -> int:  # its tan and pink limbs: red well above green, which floor and sky lack
+        frame = env.render().astype(int)
+        return int((frame[..., 0] - frame[..., 1] > 30).sum())
+
+    seen = []
+    for make in (following_env, rendering_env):
+        env = make("HalfCheetah-v5", {"width": 64, "height": 64})
+        env.reset(seed=0)
+        at_start = cheetah_pixels(env)
+        position = env.unwrapped.data.qpos.copy()
+        position[0] += 10.0  # ten metres on
+        env.unwrapped.set_state(position, env.unwrapped.data.qvel)
+        seen.append((at_start, cheetah_pixels(env)))
+        env.close()
+    (followed_start, followed_on), (fixed_start, fixed_on) = seen
+    assert fixed_start > 20 and fixed_on == 0  # Gymnasium's default camera stays where the run began
+    assert followed_on > 0.5 * followed_start > 20
 
 
 @pytest.mark.parametrize(

@@ -21,7 +21,7 @@ from gymnasium.vector import SyncVectorEnv, VectorEnv, VectorWrapper
 
 from drrl.envs.batch import ActionMap, missing_dependency
 from drrl.envs.registry import lookup
-from drrl.envs.rendered import rendering_env
+from drrl.envs.rendered import following_env, rendering_env
 from drrl.policies import Policy, make_policy
 from drrl.rollout import evaluate
 from drrl.runs import RunFolder, check_writable
@@ -154,14 +154,15 @@ def render_run(
 ) -> Recording:
     """Record one episode of a run folder's best measured (or, with ``final``, last) centre policy to ``out``, cut
     at ``max_steps`` (default: the run's own ``max_steps``, if it had one), on the env it trained on or on
-    ``env_name``, which must have the same spaces (e.g. the stand-in of the robot it trained on).
+    ``env_name``, which must have the same spaces (e.g. the stand-in of the robot it trained on); a Gymnasium MuJoCo
+    body is followed by its model's tracking camera (``drrl.envs.rendered.following_env``).
 
     ``env_options`` go to ``gymnasium.make`` (Baxter: ``width``, ``height``, ``shadows``)."""
     out = check_video_path(out)
     folder = RunFolder(Path(run_path))
     config, checkpoint = open_run(folder)
     env_id = lookup(checkpoint["env_id"] if env_name is None else env_name).env_id
-    env = rendering_env(env_id, env_options)
+    env = following_env(env_id, env_options)
     if env_name is not None:
         trained_on = rendering_env(lookup(checkpoint["env_id"]).env_id, env_options)
         trained_on.close()

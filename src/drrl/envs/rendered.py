@@ -77,6 +77,13 @@ def rendering_env(env_id: str, options: dict[str, Any] | None = None) -> gymnasi
         raise cannot_be_made(env_id, error) from None
 
 
+def following_env(env_id: str, options: dict[str, Any] | None = None) -> gymnasium.Env:
+    """``rendering_env`` seen through the model's camera named "track" where it has one (Gymnasium's MuJoCo walkers,
+    runners and swimmers: it follows the body's centre of mass, so a body that runs off stays in frame); Gymnasium
+    falls back on its free camera where a model has none."""
+    return rendering_env(env_id, {"camera_name": "track", **(options or {})} if _is_mujoco(env_id) else options)
+
+
 def make_pixels(env_id: str, render_mode: str | None = None) -> gymnasium.Env:
     """``env_id`` observing its last two grey 64 × 64 frames; ``render_mode`` is always "rgb_array"."""
     env = rendering_env(env_id, {"width": FRAME_SIZE, "height": FRAME_SIZE} if _is_mujoco(env_id) else None)
