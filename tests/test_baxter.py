@@ -546,6 +546,7 @@ def test_record_episode_writes_a_gif_of_the_policy(tmp_path):
         write_video(recording.frames, tmp_path / "reach.avi", fps=25)
 
 
+@pytest.mark.slow
 def test_drrl_train_and_render_a_baxter_run_end_to_end(tmp_path):
     """`drrl train baxter-reach-right` writes the held verdict into metrics.csv; `drrl render` records the run."""
     from click.testing import CliRunner
@@ -555,7 +556,17 @@ def test_drrl_train_and_render_a_baxter_run_end_to_end(tmp_path):
     (tmp_path / "tiny.toml").write_text("popsize = 2\nbudget = 2\nmax_steps = 10\neval_episodes = 1\n")
     run = tmp_path / "run"
     trained = CliRunner().invoke(
-        main, ["train", "baxter-reach-right", "--config", str(tmp_path / "tiny.toml"), "--out", str(run), "--quiet"]
+        main,
+        [
+            "train",
+            "baxter-reach-right",
+            "--model-free",
+            "--config",
+            str(tmp_path / "tiny.toml"),
+            "--out",
+            str(run),
+            "--quiet",
+        ],
     )
     assert trained.exit_code == 0, trained.output
     header = (run / "metrics.csv").read_text().splitlines()[0].split(",")

@@ -4,6 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from drrl.cli import main
@@ -29,6 +30,7 @@ def model_based_run(out: Path, seed: int) -> None:
     assert result.exit_code == 0, result.output
 
 
+@pytest.mark.slow
 def test_world_models_fits_on_one_runs_episodes_and_measures_on_anothers(tmp_path):
     for seed in (0, 1):
         model_based_run(tmp_path / f"run{seed}", seed)

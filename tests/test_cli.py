@@ -142,6 +142,7 @@ def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
     assert "(Pendulum-v1 counts as solved at a mean return ≥ -200)" in evaluation.output
 
 
+@pytest.mark.slow
 def test_a_model_based_run_that_misses_is_told_the_env_s_own_model_based_settings(tmp_path):
     result, _ = train(
         tmp_path, "Pendulum-v1", "--model-based", "--budget", "2", "--generations-per-iteration", "1", "--quiet"
@@ -303,6 +304,7 @@ def test_a_run_told_to_stop_when_solved_spends_no_real_episode_past_its_solved_c
     assert refused.exit_code == 2 and "stop_when_solved: Walker2d-v5 has no verdict" in refused.output
 
 
+@pytest.mark.slow
 def test_a_run_told_to_stop_after_solved_measurements_in_a_row_stops_at_the_first_such_streak(tmp_path):
     first, _ = train(tmp_path, "cartpole", "--budget", "3000", "--eval-share", "1", "--stop-when-solved")
     result, out = train(
@@ -348,6 +350,7 @@ def test_a_run_that_meets_no_criterion_is_told_the_settings_that_suit_its_task(t
     assert "settings that suit it: --policy rnn:4 --popsize 16" in result.output
 
 
+@pytest.mark.slow
 def test_cmaes_and_model_based_on_ray_run_from_the_command_line(tmp_path):
     result, out = train(tmp_path, "cartpole", "--search", "sep-cmaes", *SMALL, name="cmaes")
     assert result.exit_code == 0, result.output
@@ -376,6 +379,7 @@ def test_cmaes_and_model_based_on_ray_run_from_the_command_line(tmp_path):
     assert "done: 2 iterations, 4 real episodes" in result.output
 
 
+@pytest.mark.slow
 def test_a_run_folder_belongs_to_one_process_and_a_killed_ones_folder_is_taken_over(tmp_path):
     out = tmp_path / "run"
     drrl = str(Path(sys.executable).with_name("drrl"))

@@ -41,6 +41,7 @@ def test_demonstrations_note_the_demonstrators_actions_and_count_every_step():
 
 
 @pytest.mark.parametrize("spec, bias", [("linear", 0.4), ("linear:nobias", 0.0)])
+@pytest.mark.slow
 def test_the_clone_of_a_linear_demonstrator_is_that_linear_policy(spec, bias):
     rng = np.random.default_rng(0)
     observations = rng.normal(size=(5000, 4)) * [0.1, 1.0, 3.0, 0.5] + (bias != 0) * np.array([2, -1, 0, 5])
@@ -53,6 +54,7 @@ def test_the_clone_of_a_linear_demonstrator_is_that_linear_policy(spec, bias):
         assert abs(float(center[4]) - bias) < 2e-2
 
 
+@pytest.mark.slow
 def test_rounds_spend_the_episodes_asked_for_and_later_rounds_are_driven_by_the_clone():
     policy = make_policy("linear:nobias", 4, 1)
     center, record = cloned(policy, linear_demonstrator, "cartpole", 6, rounds=3, seed=0, noise=0.1)
@@ -101,6 +103,7 @@ def test_bad_demonstration_settings_are_refused_in_one_line(settings, message):
     assert message in describe_errors(error.value)
 
 
+@pytest.mark.slow
 def test_a_run_from_demonstrations_counts_them_as_real_episodes_and_starts_from_the_clone(tmp_path):
     out, settings = tmp_path / "run", tmp_path / "short.toml"
     settings.write_text("max_steps = 30\n")

@@ -32,6 +32,7 @@ def some_actions(env_id: str, space, observations: np.ndarray, rng: np.random.Ge
 
 
 @pytest.mark.parametrize("env_id", sorted(compiled.TASKS))
+@pytest.mark.slow
 def test_same_episodes_as_gymnasium(env_id):
     """Every observation, reward and end flag equals the gymnasium engine's (Gymnasium's env a slot, stepped in
     turn), from the same seeds and actions, including out-of-range Box actions and slots idle after their end."""

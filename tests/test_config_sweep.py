@@ -4,6 +4,7 @@ traceback; and every accepted one prepares a run or is refused before any work."
 import math
 import string
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
@@ -99,6 +100,7 @@ def small(config: TrainConfig) -> bool:
 
 @settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(setting_dicts())
+@pytest.mark.slow
 def test_generated_settings_are_accepted_or_refused_with_a_message(chosen):
     try:
         config = TrainConfig.model_validate(chosen)

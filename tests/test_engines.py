@@ -61,6 +61,7 @@ def test_the_gymnasium_engine_runs_gymnasiums_episodes_and_steps_no_ended_one():
     assert ours.episode_returns.max() > -500 and ours.episode_returns.min() == -500  # uneven lengths indeed
 
 
+@pytest.mark.slow
 def test_the_processes_engine_runs_the_gymnasium_engines_episodes_on_every_worker():
     """Three workers over 10 slots (4, 3 and 3 of them, dealt out in turn), episodes of uneven length: returns and
     counted steps those of the one-process engine, whose episodes are Gymnasium's own."""
@@ -78,6 +79,7 @@ def test_the_processes_engine_runs_the_gymnasium_engines_episodes_on_every_worke
     assert len(workers) == 3 and not any(process.is_alive() for process in workers)
 
 
+@pytest.mark.slow
 def test_the_processes_engine_refuses_bad_options_at_once_leaves_ctrl_c_to_training_and_reports_failures():
     with pytest.raises(ValueError, match="cannot be made with options"):
         make_batch_env("Acrobot-v1", 2, "processes", {"no_such_option": 1})
@@ -147,6 +149,7 @@ def test_auto_picks_drrls_own_batch_for_its_envs_and_refuses_engines_that_cannot
         choose_engine("Acrobot-v1", "native")
 
 
+@pytest.mark.slow
 def test_a_run_names_the_engine_it_used_in_its_config(tmp_path, monkeypatch):
     monkeypatch.setattr(pool, "installed", lambda: False)
     monkeypatch.setattr(compiled, "installed", lambda: False)

@@ -123,6 +123,7 @@ def damage(folder: Path, rng: random.Random) -> None:
 
 @fuzzing(200)
 @given(st.integers(0, 2**32 - 1))
+@pytest.mark.slow
 def test_a_damaged_run_folder_is_refused_in_one_line_or_measures_as_before(finished, seed):
     good, measured = finished
     folder = Path(tempfile.mkdtemp()) / "run"

@@ -77,6 +77,7 @@ def test_model_based_defaults_merge_in_the_config_alone():
 
 
 @pytest.mark.parametrize("stop_after", [1, 2])
+@pytest.mark.slow
 def test_a_stopped_model_based_run_resumes_to_the_uninterrupted_metrics_and_checkpoint(
     tmp_path, one_thread, stop_after
 ):
@@ -120,6 +121,7 @@ NORMALISED = TrainConfig(
     ],
     ids=["model-based PGPE", "model-free CMA-ES", "normalised observations"],
 )
+@pytest.mark.slow
 def test_ray_equals_local_bit_for_bit(tmp_path, one_thread, config):
     pytest.importorskip("ray")
     train(config, tmp_path / "local")
@@ -327,6 +329,7 @@ def test_the_model_guard_warns_when_the_model_promises_far_more_than_reality_giv
     assert "--model-kind rnn or lstm" in said[3] and "--model-hidden" not in said[3]  # a linear model has no width
 
 
+@pytest.mark.slow
 def test_measuring_takes_about_a_quarter_of_the_env_steps_by_default():
     """50 measuring episodes after each generation of 8 would cost six times the training; by default the loop
     measures only while measuring stays within a quarter of the steps, and always after the last generation."""

@@ -47,6 +47,7 @@ def drrl(folder: Path, *args) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.parametrize("world", [[], ["--model-based"]])
+@pytest.mark.slow
 def test_a_user_s_env_in_a_module_trains_and_its_run_is_read_again(tmp_path, world):
     (tmp_path / "my_envs.py").write_text(MODULE)
     trained = drrl(tmp_path, "train", "--env", "my_envs:Drift-v0", *world, "--budget", 16, "--quiet", "--out", "run")
@@ -72,6 +73,7 @@ def test_a_user_s_env_in_a_module_trains_and_its_run_is_read_again(tmp_path, wor
         ("my_envs:Nothing-v0", "unknown environment 'Nothing-v0'"),
     ],
 )
+@pytest.mark.slow
 def test_a_module_that_does_not_give_the_env_is_one_line(tmp_path, env, message):
     (tmp_path / "my_envs.py").write_text(MODULE)
     (tmp_path / "broken.py").write_text("1 / 0\n")

@@ -81,6 +81,7 @@ def test_an_env_that_restarts_shows_its_start_frame_twice():
     assert (observations[1, 0] != observations[1, 1]).any()
 
 
+@pytest.mark.slow
 def test_the_frame_autoencoder_learns_to_redraw_frames_and_reads_motion_off_its_codes():
     rng = np.random.default_rng(0)
     states = np.zeros((256, 4))
@@ -176,6 +177,7 @@ PIXELS = TrainConfig.model_validate(
 )
 
 
+@pytest.mark.slow
 def test_a_pixel_run_learns_on_latents_resumes_exactly_and_eval_and_render_read_frames_through_its_encoder(tmp_path):
     whole, stopped = tmp_path / "whole", tmp_path / "stopped"
     counters = train(PIXELS, whole)
@@ -200,6 +202,7 @@ def test_a_pixel_run_learns_on_latents_resumes_exactly_and_eval_and_render_read_
     assert result.exit_code == 0 and (tmp_path / "episode.gif").stat().st_size > 0, result.output
 
 
+@pytest.mark.slow
 def test_a_run_whose_encoder_weights_another_version_made_is_refused_in_one_line(tmp_path):
     folder = RunFolder(tmp_path / "run")
     train(PIXELS, folder.path)

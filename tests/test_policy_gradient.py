@@ -100,6 +100,7 @@ def test_discrete_actions_are_drawn_from_the_softmax():
 
 
 @pytest.mark.parametrize("method", ["reinforce", "enac"])
+@pytest.mark.slow
 def test_training_improves_the_thesis_cart_pole_and_resumes_exactly(tmp_path, method):
     config = TrainConfig(search=method, budget=480, seed=1, eval_every=5, eval_share=1.0)
     whole = train(config, tmp_path / "whole")

@@ -23,6 +23,7 @@ def local_ray():
     ray.shutdown()
 
 
+@pytest.mark.slow
 def test_more_workers_than_cpus_are_refused():
     workload = Workload(make_policy("linear", 4, 1), "drrl/CartPole-v0", popsize=8, episodes=1)
     with pytest.raises(ValueError, match=r"3 Ray worker\(s\) need as many CPUs, but the Ray cluster has 2"):
@@ -67,6 +68,7 @@ def same(a, b) -> bool:
     )
 
 
+@pytest.mark.slow
 def test_ray_chunks_give_the_local_backend_s_numbers(backends):
     _local, remote, params, expected = backends
     assert remote.chunks == [(0, 51), (51, 101)]

@@ -105,6 +105,7 @@ def test_an_id_that_cannot_be_seen_is_refused_in_one_line(name, message):
     assert len([line for line in result.output.splitlines() if line.startswith("Error")]) == 1
 
 
+@pytest.mark.slow
 def test_a_model_based_run_learns_from_a_gymnasium_envs_frames_and_eval_and_render_read_them(tmp_path):
     config = PIXELS.model_copy(update={"env": "Pixels/Pendulum-v1", "max_steps": 30})  # test_pixels's tiny run
     counters = train(config, tmp_path / "run")

@@ -30,6 +30,7 @@ def solving(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_the_run_ends_after_the_first_attempt_whose_last_centre_solves_the_task(solving):
     written = rows(solving)
     assert [int(row["attempt"]) for row in written] == [(g - 1) // 40 + 1 for g in range(1, len(written) + 1)]

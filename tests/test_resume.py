@@ -75,6 +75,7 @@ def start_and_stop(out: Path, how: signal.Signals, extra_delay: float, *options)
     return process.returncode, errors
 
 
+@pytest.mark.slow
 def test_sigkill_at_a_random_moment_then_resume_gives_the_uninterrupted_run(tmp_path, uninterrupted):
     delay = random.Random().uniform(0, 0.4)
     out = tmp_path / "run"

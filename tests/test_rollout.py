@@ -157,6 +157,7 @@ def page_faults(mode):
     return int(done.stdout)
 
 
+@pytest.mark.slow
 def test_retained_memory_stops_rollout_steps_from_faulting_their_pages_in_again():
     assert page_faults("default") > 2000  # glibc gives the arrays back and faults them in again every step
     assert page_faults("retain") < 200

@@ -133,7 +133,7 @@ def test_set_reaches_any_setting_and_refuses_what_is_not_one(tmp_path):
     refused = CliRunner().invoke(main, ["train", "cartpole", "--set", "model_based.no_such=1"])
     assert refused.exit_code == 2 and "'model_based.no_such' is not a setting" in refused.output
     alone = CliRunner().invoke(main, ["train", "cartpole", "--set", "model_based.ensemble_size=5"])
-    assert alone.exit_code == 2 and "only apply to a model-based run; add --model-based" in alone.output
+    assert alone.exit_code == 2 and "settings of a model-based run only; add --model-based" in alone.output
 
 
 def test_a_run_folder_an_older_drrl_wrote_is_read_and_evaluated(tmp_path):
@@ -156,3 +156,25 @@ def test_a_run_folder_an_older_drrl_wrote_is_read_and_evaluated(tmp_path):
     assert folder.read_config() == folder.load_run()[0]
     result = CliRunner().invoke(main, ["eval", str(folder.path), "--episodes", "2"])
     assert result.exit_code == 0, result.output
+
+
+def test_a_task_s_default_kind_of_run_gives_way_to_the_one_asked_for(tmp_path):
+    def kind(*args: str) -> str:
+        result = CliRunner().invoke(main, ["train", *args, "--show-settings"])
+        assert result.exit_code == 0, result.output
+        return result.output.splitlines()[0]
+
+    assert kind("baxter-reach") == "settings of a model-based run on baxter-reach:"  # the reach's measured default
+    assert 'model_kind = "linear"' in CliRunner().invoke(main, ["train", "baxter-reach", "--show-settings"]).output
+    assert kind("baxter-reach", "--model-free") == "settings of a model-free run on baxter-reach:"
+    assert kind("baxter-reach", "--search", "enac") == "settings of an action-space run on baxter-reach:"
+    assert kind("cartpole") == "settings of a model-free run on cartpole:"
+    assert kind("cartpole", "--model-based") == "settings of a model-based run on cartpole:"
+    file = tmp_path / "mb.toml"
+    file.write_text('env = "cartpole"\n[model_based]\nensemble_size = 2\n')
+    assert kind("--config", str(file)) == "settings of a model-based run on cartpole:"
+    assert kind("--config", str(file), "--model-free") == "settings of a model-free run on cartpole:"
+    refused = CliRunner().invoke(main, ["train", "baxter-reach", "--model-free", "--ensemble", "3"])
+    assert (
+        refused.exit_code == 2 and "--ensemble: settings of a model-based run only; drop --model-free" in refused.output
+    )

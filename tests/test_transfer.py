@@ -83,6 +83,7 @@ def test_another_policy_or_other_spaces_are_refused_before_any_work(source, chan
         prepare(TrainConfig.model_validate({**SOURCE, **change, "start_from": str(out)}))
 
 
+@pytest.mark.slow
 def test_a_transferred_run_resumes_without_its_source_and_a_missing_source_is_refused(source, tmp_path):
     out, _ = source
     copy = tmp_path / "source"

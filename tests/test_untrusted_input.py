@@ -299,6 +299,7 @@ def under_file_size_limit(code: str, limit: int) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_a_full_disk_at_the_first_checkpoint_is_one_line_and_the_run_starts_again_when_there_is_room(tmp_path):
     out = tmp_path / "run"
     arguments = ["train", "cartpole", "--policy", "mlp:32", "--budget", "48", "--out", str(out)]
@@ -324,6 +325,7 @@ def test_a_checkpoint_that_does_not_fit_keeps_the_last_one_whole(copy):
 # ------------------------------------------------------------------------------------------------ Ray
 
 
+@pytest.mark.slow
 def test_a_ray_address_is_checked_for_its_port_and_what_answers_there():
     pytest.importorskip("ray")
     from drrl.rollout.ray import CONNECT_TIMEOUT, _check_reachable, _host_and_port

@@ -67,6 +67,7 @@ def test_render_of_an_env_that_needs_pygame_says_what_to_install(tmp_path, monke
     assert "Traceback" not in result.output and not (tmp_path / "x.gif").exists()
 
 
+@pytest.mark.slow
 def test_render_of_a_pygame_env_is_headless_and_quiet(tmp_path):
     """Gymnasium's pygame envs draw in memory: no display session is needed, and SDL is not let complain of one."""
     pytest.importorskip("pygame", reason="gymnasium[classic_control] is not installed")

@@ -12,7 +12,7 @@ from pydantic import ValidationError
 from drrl import __version__
 from drrl.cli.compare import compare_command
 from drrl.cli.params import COUNT, EPISODES, SEED, AsciiInt
-from drrl.cli.settings import FLAGS, check_model_options, given_settings, settings_options, with_file
+from drrl.cli.settings import FLAGS, given_settings, settings_options, with_file, with_run_kind
 from drrl.cli.settings import show_settings as show_settings_of
 from drrl.envs.batch import make_batch_env
 from drrl.envs.registry import aliases, lookup
@@ -124,7 +124,7 @@ def train_command(
                 ("--env", env_option),
                 ("--config", config_file),
                 ("--out", out),
-                ("--model-based", model_based or None),
+                ("--model-based" if model_based else "--model-free", model_based),
                 ("--set", assignments),
                 *((FLAGS.get(key.replace("__", "."), "--search"), value) for key, value in options.items()),
             ]
@@ -141,11 +141,11 @@ def train_command(
         file_settings = load_config_file(config_file) if config_file else {}
     except ValueError as error:
         raise click.UsageError(str(error)) from None
-    flags = given_settings(options, model_based, assignments)
+    flags = given_settings(options, assignments)
     if env_name is not None or env_option is not None:
         flags["env"] = env_name if env_name is not None else env_option
+    flags = with_run_kind(file_settings, flags, model_based)
     settings = with_file(file_settings, flags)
-    check_model_options(file_settings, flags, model_based)
     try:
         config = TrainConfig.model_validate(settings)
     except ValidationError as error:
@@ -305,7 +305,7 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
             f"unspent"
         )
     click.echo(
-        f"done: {counters.iteration} {unit}s, {counters.real_episodes} real episodes, "
+        f"done: {counters.iteration} {unit}{'s' * (counters.iteration != 1)}, {counters.real_episodes} real episodes, "
         f"{counters.real_steps} real steps{imagined}; best measured centre {counters.best_center_return:.1f} "
         f"({unit} {counters.best_iteration}), what drrl eval runs; the last {counters.rows[-1]['center_return']:.1f}"
     )

@@ -17,6 +17,7 @@ from drrl.cli.params import INTEGER
 from drrl.settings import TrainConfig
 from drrl.settings.flat import FLAT, SEARCH_DESCRIPTION, TABLE, FlatSetting, flattened, layers_for, merged
 from drrl.settings.parts import PARAMETER_SEARCHES, POLICY_GRADIENTS
+from drrl.settings.presets import default_kind
 
 NOT_FLAGS = {"env"}  # the command's argument (and --env)
 
@@ -108,10 +109,11 @@ def settings_options(command):
         ),
         *(_option(name, flag) for name, flag in FLAGS.items()),
         click.option(
-            "--model-based",
-            is_flag=True,
+            "--model-based/--model-free",
+            default=None,
             help="Model-based PGPE: fit a world model to real episodes and search in it (its settings: "
-            "model_based.*); popsize and episodes-per-candidate then count imagined episodes.",
+            "model_based.*; popsize and episodes-per-candidate then count imagined episodes), or PGPE on the env "
+            "alone  [default: the task's (model-based for the Baxter reaches), else model-free]",
         ),
         click.option(
             "--set",
@@ -147,8 +149,8 @@ def _option(name: str, flag: str):
     return click.option(flag, _key(name), type=kind, help=help_of(FLAT[name]))
 
 
-def given_settings(options: dict, model_based: bool, assignments: tuple[str, ...]) -> dict:
-    """The flat settings the options give (unset ones left out); a model-based table where asked for."""
+def given_settings(options: dict, assignments: tuple[str, ...]) -> dict:
+    """The flat settings the options give (unset ones left out)."""
     settings: dict = {}
     given = [(key.replace("__", "."), value) for key, value in options.items() if value is not None]
     for name, value in [*given, *map(parse_assignment, assignments)]:
@@ -156,8 +158,6 @@ def given_settings(options: dict, model_based: bool, assignments: tuple[str, ...
             settings.setdefault(TABLE, {})[name.removeprefix(f"{TABLE}.")] = value
         else:
             settings[name] = value
-    if model_based:
-        settings.setdefault(TABLE, {})
     return settings
 
 
@@ -181,12 +181,24 @@ def with_file(file_settings: dict, given: dict) -> dict:
     return merged([("file", file_settings), ("flag", given)])[0]
 
 
-def check_model_options(file_settings: dict, given: dict, model_based: bool) -> None:
-    """A world model's options without a model-based run (--model-based, or a model_based table in the file) are
-    refused in one line."""
-    if not model_based and file_settings.get(TABLE) is None and given.get(TABLE):
-        names = ", ".join(FLAGS.get(f"{TABLE}.{name}", f"--set {TABLE}.{name}") for name in given[TABLE])
-        raise click.UsageError(f"{names} only apply to a model-based run; add --model-based")
+def with_run_kind(file_settings: dict, given: dict, model_based: bool | None) -> dict:
+    """``given`` with a model_based table where the run is model-based: asked for (--model-based), or neither asked
+    against (--model-free) nor a file's table, and the task's default kind (``presets.default_kind``). A world
+    model's options on a model-free run are refused in one line."""
+    user = with_file(file_settings, given)
+    asked_against = model_based is False
+    if model_based is None:
+        model_based = isinstance(file_settings.get(TABLE), dict) or (
+            user.get("search") not in POLICY_GRADIENTS and default_kind(user.get("env", "cartpole")) == "model-based"
+        )
+    options = given.get(TABLE)
+    if options and not model_based:
+        names = ", ".join(FLAGS.get(f"{TABLE}.{name}", f"--set {TABLE}.{name}") for name in options)
+        fix = "drop --model-free" if asked_against else "add --model-based"
+        raise click.UsageError(f"{names}: settings of a model-based run only; {fix}")
+    if model_based:
+        return {**given, TABLE: options or {}}
+    return {**given, TABLE: None} if asked_against and file_settings.get(TABLE) is not None else given
 
 
 def show_settings(config: TrainConfig, file: Path | None, file_settings: dict, flags: dict) -> str:
@@ -200,7 +212,8 @@ def show_settings(config: TrainConfig, file: Path | None, file_settings: dict, f
     sources = merged(layers)[1]
     flat = flattened(config)
     table = flat.pop(TABLE, None)
-    lines = [f"settings of a {config.world.kind} run on {config.env}:"]
+    article = "an" if config.world.kind[0] in "aeiou" else "a"
+    lines = [f"settings of {article} {config.world.kind} run on {config.env}:"]
     lines += [_line(name, value, sources.get(name, "default")) for name, value in flat.items()]
     if table is not None:
         lines.append(f"[{TABLE}]")
