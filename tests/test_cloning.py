@@ -33,7 +33,13 @@ def test_demonstrations_note_the_demonstrators_actions_and_count_every_step():
         acted.append(len(observations))
         return np.full((len(observations), 1), 0.5, dtype=np.float32)
 
-    record = demonstrated(linear_demonstrator, "cartpole", 5, seed=1, noise=0.0, actor=actor)
+    told = []
+    record = demonstrated(
+        linear_demonstrator, "cartpole", 5, seed=1, noise=0.0, actor=actor, stepped=lambda *now: told.append(now)
+    )
+    assert [steps for steps, _ in told] == list(range(1, len(told) + 1)) and told[-1][1] == 5  # a progress bar's
+    ended = [ended for _, ended in told]
+    assert ended == sorted(ended)
     np.testing.assert_allclose(record.raw_actions, linear_demonstrator(record.observations), atol=1e-6)
     assert record.episodes == 5 and record.steps == len(record.observations) and acted
     # a constant push ends every episode early, so there are fewer steps than 5 whole episodes

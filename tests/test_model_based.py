@@ -18,7 +18,7 @@ from drrl.models.trainer import fitting_settings, held_out_loss
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig, load_config_file
 from drrl.settings.flat import flattened
-from drrl.training.loop import better_center, run
+from drrl.training.loop import Subscriber, better_center, run
 from drrl.training.train import prepare, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -93,6 +93,27 @@ def test_the_in_model_search_stops_early_once_it_stops_improving():
     row = train(config).rows[0]
     assert 3 <= row["generations"] < 200
     assert row["imagined_episodes"] == row["generations"] * 10 * 2
+
+
+def test_a_model_based_iteration_says_what_it_is_doing_while_it_runs():
+    config = TrainConfig.model_validate(
+        dict(popsize=10, budget=4, eval_episodes=5, model_based={**QUICK_MODEL, "generations_per_iteration": 3})
+    )
+    told = []
+
+    class Listener(Subscriber):
+        def doing(self, setup, counters, doing):
+            told.append((counters.iteration, doing))
+
+    run(prepare(config), [Listener()])
+    first = [doing for done, doing in told if done == 0]  # told while iteration 1 runs
+    assert first[:2] == ["collecting real episodes", "fitting the world model"]
+    assert first[-1] == "measuring the centre on 5 fresh episodes"
+    assert first[2].startswith("searching in the model: generation 1 of at most 3, ") and first[2].endswith(
+        "s left at most"
+    )
+    second = [doing for done, doing in told if done == 1]
+    assert second[1].startswith("fitting the world model (the last fit took ")
 
 
 def test_imagined_episodes_end_at_the_imagined_horizon_and_real_ones_at_the_tasks():
@@ -755,7 +776,7 @@ def test_a_search_that_ends_worse_in_the_model_is_undone_when_asked(keep, promis
 
     from drrl.training.model_based import InModelSearch
 
-    def search_gone_astray(self, search, counters, iteration):
+    def search_gone_astray(self, search, counters, iteration, report):
         state = search.state_dict()
         state["center"] = search.center + 1.0
         search.load_state_dict(state)

@@ -60,11 +60,12 @@ def demonstrated(
     engine: str = "auto",
     max_steps: int | None = None,
     actor: Actor | None = None,
+    stepped: Callable[[int, int], None] | None = None,
 ) -> Demonstrations:
     """``episodes`` real episodes on ``env_id`` in one batch, seeded by ``seed``, with the raw outputs that give
     ``demonstrator``'s action at every step; the env is given ``actor``'s raw outputs (observations → raw outputs,
     e.g. a clone's, as DAgger does; the demonstrator's own if None) plus N(0, ``noise``²) on each (a bounded Box's
-    outputs span [−1, 1])."""
+    outputs span [−1, 1]). ``stepped(steps, ended)`` is told after every step of the batch."""
     env = make_batch_env(env_id, episodes, engine)
     action_map, rng = ActionMap(env.single_action_space), np.random.default_rng(seed)
     observed, actions = [], []
@@ -81,6 +82,8 @@ def demonstrated(
             observations, _, terminated, truncated, _ = env.step(action_map(torch.from_numpy(noisy)))
             steps += 1
             running &= ~(terminated | truncated)
+            if stepped is not None:
+                stepped(steps, episodes - int(running.sum()))
     finally:
         env.close()
     return Demonstrations(np.concatenate(observed).astype(np.float32), np.concatenate(actions), episodes)
@@ -142,7 +145,7 @@ def cloned(
 ) -> tuple[torch.Tensor, Demonstrations]:
     """The clone (n,) after ``rounds`` rounds of ``episodes`` real episodes in all (``demonstrated``; the first
     round driven by the demonstrator, each later one by the clone so far), and every episode recorded; with
-    ``progress``, a bar of the episodes recorded."""
+    ``progress``, a bar of the episodes recorded, the round's step and what it is doing."""
     center: torch.Tensor | None = None
     recorded: list[Demonstrations] = []
     bar = tqdm(total=episodes, unit="ep", desc="demonstrations", disable=not progress, dynamic_ncols=True)
@@ -150,13 +153,30 @@ def cloned(
         share = episodes * (round_ + 1) // rounds - episodes * round_ // rounds
         actor = None if center is None else acting(policy, center)
         here = int(np.random.SeedSequence([seed, round_]).generate_state(1)[0])
-        recorded.append(demonstrated(demonstrator, env_id, share, here, noise, engine, max_steps, actor))
+        named = f"round {round_ + 1} of {rounds}: " if rounds > 1 else ""
+        stepped = _recording(bar, f"{named}step {{}} of the {share} episodes")
+        recorded.append(demonstrated(demonstrator, env_id, share, here, noise, engine, max_steps, actor, stepped))
         record = joined(recorded)
+        bar.set_postfix_str(f"{named}fitting the clone to {record.episodes} episodes")
         center = clone(policy, record, here, device)
-        bar.update(share)
     bar.close()
     assert center is not None
     return center, record
+
+
+def _recording(bar: tqdm, label: str) -> Callable[[int, int], None]:
+    """What a batch of demonstrations tells ``bar`` after each step: the episodes ended so far, ``label`` with the
+    step."""
+    before = bar.n
+
+    def stepped(steps: int, ended: int) -> None:
+        bar.set_postfix_str(label.format(steps), refresh=False)
+        if before + ended > bar.n:
+            bar.update(before + ended - bar.n)
+        elif steps % 25 == 0:
+            bar.refresh()
+
+    return stepped
 
 
 def acting(policy: Policy, center: torch.Tensor) -> Actor:

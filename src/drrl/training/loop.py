@@ -172,6 +172,8 @@ class Setup(Generic[L]):
     world: World[L]
     eval_env: VectorEnv  # measures the centre policy, always here
     spent: tuple[int, int] = (0, 0)  # real training episodes and steps spent before the first step (demonstrations)
+    # what a long step is doing now, for the subscribers' ``doing`` (the loop points it at them while it runs)
+    report: Callable[[str], None] = field(default=lambda doing: None, repr=False)
 
     def close(self) -> None:
         self.world.close()
@@ -194,6 +196,9 @@ class Subscriber:
     def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
         """When the run ends for any reason, with the last whole step's state."""
 
+    def doing(self, setup: Setup, counters: Counters, doing: str) -> None:
+        """While a step runs, what it is doing now (a model-based iteration: fitting, the search in the model)."""
+
 
 def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters | None = None) -> Counters:
     """Step ``setup.world`` to the end of its budget, or until ``solved``; ``counters`` (from ``restore``) continue a
@@ -204,14 +209,20 @@ def run(setup: Setup, subscribers: Sequence[Subscriber] = (), counters: Counters
     for subscriber in subscribers:
         subscriber.started(setup, counters, snapshot)
     start = time.perf_counter() - counters.wall_time
+
+    def report(doing: str) -> None:
+        for subscriber in subscribers:
+            subscriber.doing(setup, counters, doing)
+
+    setup.report = report
     try:
         with sigterm_as_interrupt(), one_thread():
             for iteration in range(counters.iteration + 1, setup.world.iterations + 1):
                 if solved(setup, counters):
                     break
                 row = setup.world.step(setup, counters, iteration)
-                counters.iteration = iteration
                 row.update(measure_center(setup, counters, iteration))
+                counters.iteration = iteration
                 counters.wall_time = time.perf_counter() - start
                 row.update(eval_episodes=counters.eval_episodes, wall_time=round(counters.wall_time, 3))
                 counters.rows.append(row)
@@ -266,6 +277,7 @@ def measure_center(setup: Setup, counters: Counters, iteration: int) -> dict:
     in the same columns (metrics.csv keeps fixed columns)."""
     if not setup.world.measure_due(iteration, counters):
         return dict.fromkeys(("center_return", *setup.entry.criteria()), float("nan"))
+    setup.report(f"measuring the centre on {setup.eval_env.num_envs} fresh episodes")
     center = deployed_center(setup)
     measured = measure(
         setup.policy,

@@ -130,13 +130,16 @@ class ModelBased(World[Search]):
     def step(self, setup: Setup[Search], counters: Counters, iteration: int) -> dict:
         """Collect, fit, search in the model (module docstring); the iteration's metrics row."""
         search = setup.search
+        setup.report("collecting real episodes")
         episodes, real = self.collector.collect(search, counters, iteration, self.measured_on, self.imagination)
+        last = counters.rows[-1].get("fit_time") if counters.rows else None
+        setup.report(f"fitting the world model{'' if last is None else f' (the last fit took {last:.0f} s)'}")
         fit_start = time.perf_counter()
         seeing = self.remember(episodes, iteration)
         fitted = self.trainer.fit(self.buffer, iteration)
         self.learn_outcome(iteration)
         search_start = time.perf_counter()
-        searched = self.imagination.improve(search, counters, iteration)
+        searched = self.imagination.improve(search, counters, iteration, setup.report)
         times = {"fit_time": round(search_start - fit_start, 3), "search_time": round(searched.end - search_start, 3)}
         return metrics_row(iteration, counters, real, fitted, searched, search) | seeing | times
 
@@ -294,7 +297,7 @@ class InModelSearch:
         self.config, self.settings, self.policy, self.backend = config, settings, policy, backend
         self.imagined, self.real_horizon = imagined, real_horizon
 
-    def improve(self, search: Search, counters: Counters, iteration: int) -> Searched:
+    def improve(self, search: Search, counters: Counters, iteration: int, report: Callable[[str], None]) -> Searched:
         """Iteration ``iteration``'s generations in the model, counted in ``counters``."""
         config = self.config
         imagined = self.imagined(self.settings.disagreement_penalty)
@@ -305,7 +308,7 @@ class InModelSearch:
         )
         before = search.state_dict() if self.settings.keep_unless_improved else None
         old_center = search.center
-        generations, tied = self.generations(search, counters, iteration)
+        generations, tied = self.generations(search, counters, iteration, report)
         end = time.perf_counter()
         # the centre in the model, as long as a real episode (the loop measures it in reality); where it may be kept,
         # the old one beside it on the same starts
@@ -317,16 +320,20 @@ class InModelSearch:
             kept = True
         return Searched(generations, tied, float(in_model[1 if kept else 0]), kept, end)
 
-    def generations(self, search: Search, counters: Counters, iteration: int) -> tuple[int, int]:
+    def generations(
+        self, search: Search, counters: Counters, iteration: int, report: Callable[[str], None]
+    ) -> tuple[int, int]:
         """Generations on imagined episodes, counted in ``counters``; returns how many ran, and in how many every
-        candidate's imagined return was the same (no gradient: PGPE widens σ, ``drrl.search.pgpe``).
+        candidate's imagined return was the same (no gradient: PGPE widens σ, ``drrl.search.pgpe``). ``report``
+        is told each one, with the time the rest would take at most.
 
         Stops early (beyond the thesis, for speed) once the best mean imagined return of a generation's candidates
         has not improved for ``patience`` generations: the search has converged on this model, and more generations
         would only fit the model's errors.
         """
         best, since_best, generation, tied = float("-inf"), 0, 0, 0
-        for generation in range(1, self.settings.generations_per_iteration + 1):
+        most, start = self.settings.generations_per_iteration, time.perf_counter()
+        for generation in range(1, most + 1):
             seed = imagined_seed(self.config.seed, iteration, generation)
             try:
                 evaluation, metrics = run_generation(
@@ -345,6 +352,8 @@ class InModelSearch:
             best, since_best = (mean, 0) if mean > best else (best, since_best + 1)
             if since_best >= self.settings.patience:
                 break
+            left = (time.perf_counter() - start) / generation * (most - generation)
+            report(f"searching in the model: generation {generation} of at most {most}, {left:.0f} s left at most")
         return generation, tied
 
     def imagine_centers(self, centers: torch.Tensor, iteration: int) -> torch.Tensor:

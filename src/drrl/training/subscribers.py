@@ -59,7 +59,8 @@ class RunFolderWriter(Subscriber):
 
 
 class ProgressBar(Subscriber):
-    """Real training episodes spent out of the budget, and the last step's returns."""
+    """Real training episodes spent out of the budget, and the last step's returns; while a long step runs, what it
+    is doing."""
 
     def __init__(self, description: str = "real episodes"):
         self.description = description
@@ -90,6 +91,10 @@ class ProgressBar(Subscriber):
             ),
             refresh=False,
         )
+
+    def doing(self, setup: Setup, counters: Counters, doing: str) -> None:
+        self.bar.update(counters.real_episodes - self.bar.n)
+        self.bar.set_postfix_str(f"{setup.world.unit} {counters.iteration + 1}: {doing}")
 
     def ended(self, setup: Setup, counters: Counters, snapshot: dict) -> None:
         if self.bar is not None:
