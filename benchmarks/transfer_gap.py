@@ -2,10 +2,10 @@
 robot (``drrl.envs.baxter.standin``: masses and damping off by up to ±20 %, commands a period late and lagging, noisy
 joint sensors).
 
-For each seed, ``drrl.training.train.train`` trains the one-arm fixed-target reach (the README's settings) in the
-nominal simulator; its best measured centre then runs ``--episodes`` fresh episodes on the nominal robot and on each of
-``--robots`` stand-ins (counted apart from training). Prints the fraction reached (every end-point within 0.05 m at
-the end, nothing failed) and the fraction failed, per seed and robot, then medians.
+For each seed, ``drrl.training.train.train`` trains the one-arm fixed-target reach (the Baxter tutorial's model-free
+settings) in the nominal simulator; its best measured centre then runs ``--episodes`` fresh episodes on the nominal
+robot and on each of ``--robots`` stand-ins (counted apart from training). Prints the fraction reached (every
+end-point within 0.05 m at the end, nothing failed) and the fraction failed, per seed and robot, then medians.
 
     python benchmarks/transfer_gap.py --seeds 3 --robots 3
     python benchmarks/transfer_gap.py --seeds 3 --first-seed 2 --robots 0 --ablate 1   # one difference at a time

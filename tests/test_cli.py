@@ -13,6 +13,8 @@ from click.testing import CliRunner
 
 from drrl.cli import main
 from drrl.cli.commands import advice_after_a_miss
+from drrl.envs.gymnasium_tasks import alive_bonus_note
+from drrl.envs.registry import lookup
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig
 from drrl.settings.flat import flattened
@@ -139,7 +141,7 @@ def test_any_gymnasium_env_trains_and_evaluates(tmp_path):
     ) in result.output
     evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "2"])
     assert "±" in evaluation.output and "balanced" not in evaluation.output
-    assert "(Pendulum-v1 counts as solved at a mean return ≥ -200)" in evaluation.output
+    assert "(Pendulum-v1 counts as solved at a mean return ≥ -200, drrl's level:" in evaluation.output
 
 
 @pytest.mark.slow
@@ -162,6 +164,37 @@ def test_a_run_with_the_env_s_own_settings_is_told_what_helps_a_run_of_its_kind(
             setup.close()
     assert "--episodes-per-candidate" in advice["model-free"] and "--generations-per" not in advice["model-free"]
     assert "--generations-per" in advice["model-based"] and "--episodes-per-candidate" not in advice["model-based"]
+    assert "mlp:32" in advice["model-free"]
+
+
+@pytest.mark.parametrize(
+    ("env", "settings", "not_again"),
+    [
+        ("cartpole", {"policy": "mlp:32"}, "mlp:32"),  # the generic advice, less the policy the run had
+        ("cartpole-po", {"policy": "rnn:4", "popsize": 16}, "--policy rnn:4"),  # the task's suggestion, less it
+    ],
+)
+def test_advice_after_a_miss_never_repeats_a_setting_the_run_had(env, settings, not_again):
+    setup = prepare(TrainConfig(env=env, eval_episodes=2, **settings))
+    try:
+        advice = advice_after_a_miss(setup)
+    finally:
+        setup.close()
+    assert not_again not in advice and advice.startswith(("try", "settings that suit it"))
+
+
+def test_eval_gives_a_verdict_on_any_gymnasium_env_and_calls_out_a_farmed_alive_bonus(tmp_path):
+    for env_id, level in (("Walker2d-v5", "≥ 3000, drrl's level: below the PPO"), ("Pusher-v5", "≥ -30, drrl's")):
+        explained = lookup(env_id).explain
+        assert explained is not None and level in explained(torch.zeros(1, 2), torch.zeros(1, 2, dtype=torch.bool))
+    standing = alive_bonus_note("Walker2d-v5", torch.full((1, 4), 1056.0), torch.full((1, 4), 1000))
+    assert standing is not None and standing.startswith("1000 of the mean return 1056.0 is the alive bonus")
+    assert alive_bonus_note("Walker2d-v5", torch.full((1, 4), 3100.0), torch.full((1, 4), 1000)) is None
+    assert alive_bonus_note("Pendulum-v1", torch.full((1, 4), -100.0), torch.full((1, 4), 200)) is None
+    result, out = train(tmp_path, "Blackjack-v1", *SMALL)  # no reward_threshold, and no level of drrl's
+    assert result.exit_code == 0, result.output
+    evaluated = CliRunner().invoke(main, ["eval", str(out), "--episodes", "4"])
+    assert evaluated.exit_code == 0 and "verdict:      none (Blackjack-v1 has no reward_threshold" in evaluated.output
 
 
 def test_the_settings_measured_for_gymnasiums_tasks_are_their_defaults_and_valid():
@@ -190,7 +223,7 @@ def test_a_gymnasium_task_with_a_reward_threshold_is_judged_solved_or_not_by_it(
     assert "the centre met none of Acrobot-v1's criteria (solved); try a larger --budget" in result.output
     evaluation = CliRunner().invoke(main, ["eval", str(out), "--episodes", "2"])
     assert "solved:       no" in evaluation.output
-    assert "(Acrobot-v1 counts as solved at a mean return ≥ -100)" in evaluation.output
+    assert "(Acrobot-v1 counts as solved at a mean return ≥ -100, Gymnasium's reward_threshold)" in evaluation.output
 
 
 def test_config_file_is_read_and_overridden_by_options(tmp_path):

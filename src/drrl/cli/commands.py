@@ -15,6 +15,7 @@ from drrl.cli.params import COUNT, EPISODES, SEED, AsciiInt
 from drrl.cli.settings import FLAGS, given_settings, settings_options, with_file, with_run_kind
 from drrl.cli.settings import show_settings as show_settings_of
 from drrl.envs.batch import make_batch_env
+from drrl.envs.gymnasium_tasks import alive_bonus_note
 from drrl.envs.registry import aliases, lookup
 from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.runs import RunFolder, check_writable
@@ -224,14 +225,19 @@ def resume_run(
     run_and_report(setup, folder, attached, counters)
 
 
-LARGER_POLICY = "a larger --policy (mlp:32, mlp:64,64)"
-GENERIC_ADVICE = {  # after a miss with the env's own settings, by the run's kind (``World.kind``)
-    "model-free": f"try a larger --budget, more --episodes-per-candidate, another --sigma-init or {LARGER_POLICY}",
-    "model-based": "try a larger --budget (real episodes), more --generations-per-iteration in the model, or another "
-    "world model "
-    "(--model-kind, --model-hidden, --ensemble 5)",
-    "action-space": f"try a larger --budget, another --center-lr (its step size) or {LARGER_POLICY}",
-}
+LARGER_POLICIES = ("mlp:32", "mlp:64,64")
+
+
+def generic_advice(kind: str, policy: str) -> str:
+    """What most often helps a run of ``kind`` (``World.kind``) that missed, less the policy it already had."""
+    larger = [spec for spec in LARGER_POLICIES if spec != policy]
+    policies = f"a larger --policy ({', '.join(larger)})" if larger else "a larger --policy"
+    return {
+        "model-free": f"try a larger --budget, more --episodes-per-candidate, another --sigma-init or {policies}",
+        "model-based": "try a larger --budget (real episodes), more --generations-per-iteration in the model, or "
+        "another world model (--model-kind, --model-hidden, --ensemble 5)",
+        "action-space": f"try a larger --budget, another --center-lr (its step size) or {policies}",
+    }[kind]
 
 
 def overridden_defaults(setup: Setup) -> dict:
@@ -249,9 +255,12 @@ def overridden_defaults(setup: Setup) -> dict:
 def advice_after_a_miss(setup: Setup) -> str:
     """What to try after a run whose centre met none of the task's criteria: the settings that suit the task (the
     entry's own, else the env's defaults the run set otherwise), or with none, what most often helps a run of its
-    kind; after a model-free run, a model-based one where drrl has model-based settings for the env."""
-    suggested = suggested_settings(setup.config.env) or overridden_defaults(setup)
-    advice = GENERIC_ADVICE[setup.world.kind]
+    kind; never a setting the run already had; after a model-free run, a model-based one where drrl has model-based
+    settings for the env."""
+    flat = flattened(setup.config)
+    suitable = {name: value for name, value in suggested_settings(setup.config.env).items() if flat.get(name) != value}
+    suggested = suitable or overridden_defaults(setup)
+    advice = generic_advice(setup.world.kind, setup.config.policy)
     if suggested:
         advice = "settings that suit it: " + " ".join(
             f"--{name.replace('_', '-')} {value}" for name, value in suggested.items()
@@ -367,10 +376,19 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
         f"{entry.env_id}, {config.policy} policy, {which}, {episodes} episodes: return "
         f"{returns.mean():.1f} ± {returns.std():.1f} (min {returns.min():.1f}, max {returns.max():.1f})"
     )
-    for name, ok in entry.judge(result.episode_returns, result.terminated).items():
+    verdict = entry.judge(result.episode_returns, result.terminated)
+    for name, ok in verdict.items():
         click.echo(f"{name.replace('_', '-') + ':':14}{'yes' if ok else 'no'}")
+    if not verdict:
+        click.echo(
+            f"verdict:      none ({entry.env_id} has no reward_threshold and drrl knows no level for it: set the "
+            "return beside a published one)"
+        )
     if entry.explain is not None:
         click.echo(entry.explain(result.episode_returns, result.terminated))
+    farming = alive_bonus_note(entry.env_id, result.episode_returns, result.episode_steps)
+    if farming is not None:
+        click.echo(farming)
 
 
 @main.command("render")

@@ -28,7 +28,7 @@ import gymnasium
 import numpy as np
 import torch
 
-from drrl.envs.gymnasium_tasks import ACTION_COSTS, COMPLETIONS, MIRRORS, REWARDS, SOLVED_LEVELS
+from drrl.envs.gymnasium_tasks import ACTION_COSTS, COMPLETIONS, DRRL_LEVELS, MIRRORS, REWARDS
 
 # (episode_returns (P, E), terminated (P, E)) -> {criterion: met}
 Verdict = Callable[[torch.Tensor, torch.Tensor], dict[str, bool]]
@@ -212,10 +212,11 @@ def _listed(names) -> str:
 
 
 def gymnasium_entry(env_id: str) -> EnvEntry:
-    """The entry of a Gymnasium env drrl has no module for: solved at its spec's ``reward_threshold`` (or the usual
-    level), if there is one, with its reward in closed form where drrl knows it."""
+    """The entry of a Gymnasium env drrl has no module for: solved at its spec's ``reward_threshold`` or drrl's own
+    level (``DRRL_LEVELS``, where the spec has none or one out of reach), if there is one, with its reward in closed
+    form where drrl knows it."""
     spec = gymnasium.spec(env_id)
-    threshold = SOLVED_LEVELS.get(env_id) if spec.reward_threshold is None else spec.reward_threshold
+    threshold, source = DRRL_LEVELS.get(env_id, (spec.reward_threshold, None))
     entry = EnvEntry(
         env_id,
         reward=REWARDS.get(env_id),
@@ -230,6 +231,7 @@ def gymnasium_entry(env_id: str) -> EnvEntry:
         return {"solved": bool(episode_returns.mean() >= threshold)}
 
     def explain(episode_returns: torch.Tensor, terminated: torch.Tensor) -> str:
-        return f"({env_id} counts as solved at a mean return ≥ {threshold:g})"
+        whose = "Gymnasium's reward_threshold" if source is None else f"drrl's level: {source}"
+        return f"({env_id} counts as solved at a mean return ≥ {threshold:g}, {whose})"
 
     return replace(entry, verdict=verdict, explain=explain)
