@@ -134,8 +134,8 @@ def linear_fit(x: np.ndarray, y: np.ndarray) -> float:
     return 1 - residual.var() / y.var()
 
 
-def test_a_model_free_run_on_frames_is_refused_in_one_line(tmp_path):
-    result = CliRunner().invoke(main, ["train", "cartpole-pixels", "--out", str(tmp_path / "run")])
+def test_a_model_free_run_on_frames_asked_for_is_refused_in_one_line(tmp_path):
+    result = CliRunner().invoke(main, ["train", "cartpole-pixels", "--model-free", "--out", str(tmp_path / "run")])
     errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
     assert result.exit_code == 2 and len(errors) == 1 and "add --model-based" in errors[0], result.output
     assert not (tmp_path / "run").exists()

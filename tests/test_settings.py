@@ -169,6 +169,7 @@ def test_a_task_s_default_kind_of_run_gives_way_to_the_one_asked_for(tmp_path):
     assert kind("baxter-reach", "--model-free") == "settings of a model-free run on baxter-reach:"
     assert kind("baxter-reach", "--search", "enac") == "settings of an action-space run on baxter-reach:"
     assert kind("cartpole") == "settings of a model-free run on cartpole:"
+    assert kind("Pixels/Pendulum-v1") == "settings of a model-based run on Pixels/Pendulum-v1:"  # frames need a model
     assert kind("cartpole", "--model-based") == "settings of a model-based run on cartpole:"
     file = tmp_path / "mb.toml"
     file.write_text('env = "cartpole"\n[model_based]\nensemble_size = 2\n')

@@ -271,8 +271,15 @@ TASKS: dict[str, dict[str, str]] = {
     "Reacher-v5": {"model-free": "Reacher-v5", "model-based": "Reacher-v5 model-based"},
 }
 # Tasks whose runs are model-based unless told otherwise (--model-free): the reaches measured model-based, which learn
-# in 6-14 real episodes where model-free PGPE with the thesis's velocity actions never reaches both targets.
-MODEL_BASED_TASKS = {"drrl/BaxterReach-v0", "drrl/BaxterReachRight-v0", "drrl/BaxterReachRightRandom-v0"}
+# in 6-14 real episodes where model-free PGPE with the thesis's velocity actions never reaches both targets, and the
+# tasks seen as frames (and any Pixels/ID), which only a model-based run's encoder lets a policy read.
+MODEL_BASED_TASKS = {
+    "drrl/BaxterReach-v0",
+    "drrl/BaxterReachRight-v0",
+    "drrl/BaxterReachRightRandom-v0",
+    "drrl/CartPolePixels-v0",
+    "drrl/CartPoleSwingUpPixels-v0",
+}
 SUGGESTED = {"drrl/CartPolePO-v0": "partially observed"}  # shown after a miss, not a default
 PIXELS = "Pixels/"  # an env seen through its camera (drrl.envs.rendered)
 
@@ -284,7 +291,8 @@ def task_preset(env: str, kind: str) -> str | None:
 
 def default_kind(env: object) -> str:
     """The kind of run (model-free or model-based) ``drrl train`` makes on ``env`` unless told which."""
-    return "model-based" if _env_id(env) in MODEL_BASED_TASKS else "model-free"
+    env_id = _env_id(env) or ""
+    return "model-based" if env_id in MODEL_BASED_TASKS or env_id.startswith(PIXELS) else "model-free"
 
 
 def presets_for(env: object, kind: str, search: object = None) -> list[tuple[str, dict]]:
