@@ -368,7 +368,16 @@ def test_the_drrl_command_is_installed():
 
 def test_eval_explains_each_tasks_own_verdict(tmp_path):
     result, out = train(
-        tmp_path, "cartpole-swingup", "--budget", "16", "--popsize", "8", "--eval-episodes", "4", "--quiet"
+        tmp_path,
+        "cartpole-swingup",
+        "--model-free",
+        "--budget",
+        "16",
+        "--popsize",
+        "8",
+        "--eval-episodes",
+        "4",
+        "--quiet",
     )
     assert result.exit_code == 0, result.output
     evaluated = CliRunner().invoke(main, ["eval", str(out), "--episodes", "4"])

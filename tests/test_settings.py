@@ -15,7 +15,7 @@ from drrl.cli.settings import FLAGS, reference_table
 from drrl.runs import RunFolder
 from drrl.settings import TrainConfig, describe_errors
 from drrl.settings.flat import FLAT, SEARCHES, WORLDS, flattened, nested
-from drrl.settings.presets import PRESETS, TASKS
+from drrl.settings.presets import PRESETS, TASKS, not_learned
 from drrl.training.train import train
 
 SOURCE = Path(__file__).parents[1] / "src" / "drrl"
@@ -179,3 +179,13 @@ def test_a_task_s_default_kind_of_run_gives_way_to_the_one_asked_for(tmp_path):
     assert (
         refused.exit_code == 2 and "--ensemble: settings of a model-based run only; drop --model-free" in refused.output
     )
+
+
+def test_a_task_no_method_learns_yet_says_so_and_names_the_closest_before_any_work(tmp_path):
+    (tmp_path / "taken").write_text("")  # a run folder that cannot be made: the note comes before that refusal
+    result = CliRunner().invoke(main, ["train", "baxter-stack", "--out", str(tmp_path / "taken" / "run")])
+    assert result.exit_code == 2 and "refused" not in result.output.split("note:")[0]
+    assert "note: no method of drrl learns baxter-stack yet; what comes closest is baxter-stack-end-point" in (
+        result.output
+    )
+    assert not_learned("baxter-stack-end-point") is None and not_learned("cartpole") is None

@@ -21,8 +21,8 @@ from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.runs import RunFolder, check_writable
 from drrl.settings import TrainConfig, describe_errors, load_config_file
 from drrl.settings.flat import flattened
+from drrl.settings.presets import not_learned, task_preset, task_settings
 from drrl.settings.presets import suggested as suggested_settings
-from drrl.settings.presets import task_preset, task_settings
 from drrl.streams import Stream, derive_seed
 from drrl.training.loop import Counters, Setup, measure, one_thread, run, sigterm_as_interrupt, solved
 from drrl.training.model_based import ModelDiverged
@@ -157,6 +157,8 @@ def train_command(
         lookup(config.env)  # an unknown env is refused before a folder is named after it
     except ValueError as error:
         raise click.UsageError(str(error)) from None
+    if (warning := not_learned(config.env)) is not None:
+        click.echo(f"note: {warning}", err=True)
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(out or Path("runs") / f"{config.env.replace('/', '-')[:100]}-{stamp}")
     with sigterm_as_interrupt():  # from before the folder exists: a signal finds it whole or absent
