@@ -65,7 +65,7 @@ def test_each_attempt_starts_from_a_new_centre_and_the_first_is_the_run_without_
             ["cartpole", "--restart-every", "5", "--model-based"],
             "restart_every: a setting of model-free runs, not of model-based",
         ),
-        (["Walker2d-v5", "--restart-every", "5"], "restart_every: Walker2d-v5 has no verdict"),
+        (["Humanoid-v5", "--restart-every", "5"], "restart_every: Humanoid-v5 has no verdict"),
         (["cartpole", "--restart-every", "0"], "restart_every"),
     ],
 )
