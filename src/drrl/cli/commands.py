@@ -272,6 +272,21 @@ def advice_after_a_miss(setup: Setup) -> str:
     return advice
 
 
+def verdict_of_best(setup: Setup, counters: Counters) -> str | None:
+    """The verdict on the best measured centre, in words: which of the task's criteria it met when measured."""
+    unit, criteria = setup.world.unit, setup.entry.criteria()
+    row = next((row for row in counters.rows if int(float(row.get(unit, -1))) == counters.best_iteration), None)
+    if row is None or not criteria:
+        return None
+    met = [name.replace("_", "-") for name in criteria if float(row.get(name, 0)) == 1]
+    missed = [name.replace("_", "-") for name in criteria if float(row.get(name, 0)) != 1]
+    said = " and ".join(met) + (f", not {' or '.join(missed)}" if missed else "")
+    return (
+        f"the best measured centre was {said} on its {setup.eval_env.num_envs} measuring episodes; "
+        "drrl eval measures it again on fresh ones"
+    )
+
+
 def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Counters | None = None) -> None:
     """Run the training loop, then say what it did; a stopped run says how to resume it."""
     out, unit = folder.path, setup.world.unit
@@ -320,6 +335,8 @@ def run_and_report(setup: Setup, folder: RunFolder, attached: list, counters: Co
         f"{counters.real_steps} real steps{imagined}; best measured centre {counters.best_center_return:.1f} "
         f"({unit} {counters.best_iteration}), what drrl eval runs; the last {counters.rows[-1]['center_return']:.1f}"
     )
+    if counters.best_center_criteria and (verdict := verdict_of_best(setup, counters)):
+        click.echo(verdict)
     if setup.entry.criteria() and not counters.best_center_criteria:
         click.echo(
             f"the centre met none of {setup.entry.env_id}'s criteria ({', '.join(setup.entry.criteria())}); "
