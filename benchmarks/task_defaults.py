@@ -8,6 +8,8 @@ BENCHMARKS.md shows.
 
     python benchmarks/task_defaults.py --core 1 --timeout 150
     python benchmarks/task_defaults.py --tasks cartpole --seeds 0-9 --core 1
+    python benchmarks/task_defaults.py --tasks HalfCheetah-v5,MountainCar-v0 --timeout 1200 \\
+        --results benchmarks/results/standard_envs.json
     python benchmarks/task_defaults.py --table
 """
 
@@ -122,10 +124,16 @@ def main() -> None:
     parser.add_argument("--core", type=int, default=1, help="the core every run is pinned to")
     parser.add_argument("--seeds", default="0", help="seeds, as 0-9 or 0,3,5  [default: 0]")
     parser.add_argument("--timeout", type=float, default=150.0, help="seconds a run may take before it is cut")
+    parser.add_argument(
+        "--results",
+        type=Path,
+        default=RESULTS,
+        help="the results file  [default: benchmarks/results/task_defaults.json]",
+    )
     parser.add_argument("--table", action="store_true", help="print the results file as a table, and stop")
     args = parser.parse_args()
     if args.table:
-        return print(table(json.loads(RESULTS.read_text())))
+        return print(table(json.loads(args.results.read_text())))
     from drrl.envs.registry import aliases
 
     tasks = args.tasks.split(",") if args.tasks else list(aliases())
@@ -139,7 +147,7 @@ def main() -> None:
                 rows.append({**one_task(task, args.core, Path(folder), seed, args.timeout), **measured})
                 print(json.dumps(rows[-1]), flush=True)
     # the rows of tasks measured before (another --tasks) are kept; a task's new rows replace its old ones
-    before = json.loads(RESULTS.read_text())["rows"] if RESULTS.exists() else []
+    before = json.loads(args.results.read_text())["rows"] if args.results.exists() else []
     order = {task: place for place, task in enumerate(aliases())}
     kept = [row for row in before if row["task"] not in tasks]
     results = {
@@ -148,8 +156,8 @@ def main() -> None:
         "date and timeout",
         "rows": sorted([*kept, *rows], key=lambda row: (order.get(row["task"], len(order)), row["seed"])),
     }
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=1) + "\n")
+    args.results.parent.mkdir(exist_ok=True)
+    args.results.write_text(json.dumps(results, indent=1) + "\n")
     print(table(results))
 
 
