@@ -116,7 +116,7 @@ SWING_UP_PIXELS_MODEL_BASED: dict[str, Any] = {
 # ------------------------------------------------------------------------------------------- Baxter
 
 
-def _reach_model_based(both: bool) -> dict[str, Any]:
+def _reach_model_based(both: bool, judged: bool = True) -> dict[str, Any]:
     """A model-based reach: the linear world model of the joints (the recurrent ones, fitted on the violent first
     episodes, do not carry over to a reach), six first real episodes per arm, a search of up to 100 generations in
     the model on imagined episodes of 300 steps (a reach takes about one second; 2000 imagined steps would cost seven
@@ -126,6 +126,9 @@ def _reach_model_based(both: bool) -> dict[str, Any]:
     features) picks centres that fail in reality within half a second (1 of 4 seeds reached); with twelve, 9 of 10
     seeds reach, and the tenth's 20 candidates (of a 560-weight policy) all fail in the model, the search drifts
     to a centre that fails in reality within 0.2 s and stays there: with 60 it reaches after 14 real episodes.
+
+    A run on a ``judged`` task stops once its centre reaches (real episodes are the currency: none spent past a
+    centre that reaches); a dense reward's task has no verdict to stop at.
     """
     return {
         "budget": 50 if both else 30,
@@ -134,7 +137,7 @@ def _reach_model_based(both: bool) -> dict[str, Any]:
         "sigma_lr": 0.05,
         "center_lr": 0.15,
         "fitness_shaping": "centered_ranks",
-        "stop_when_solved": True,  # real episodes are the currency: none spent past a centre that reaches
+        **({"stop_when_solved": True} if judged else {}),
         "model_based": {
             "model_kind": "linear",
             "initial_episodes": 12 if both else 6,
@@ -147,6 +150,7 @@ def _reach_model_based(both: bool) -> dict[str, Any]:
 
 REACH_ONE_ARM_MODEL_BASED = _reach_model_based(both=False)
 REACH_BOTH_ARMS_MODEL_BASED = _reach_model_based(both=True)
+REACH_BOTH_ARMS_DENSE_MODEL_BASED = _reach_model_based(both=True, judged=False)
 # A model-free run on a task the scripted stacker does starts from its clone (drrl.training.cloning): a tanh network of
 # 128 × 128 fitted to 64 of its real episodes, then PGPE with perturbations small enough that most candidates still
 # stack.
@@ -246,6 +250,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     "swing-up pixels model-based": SWING_UP_PIXELS_MODEL_BASED,
     "reach one arm model-based": REACH_ONE_ARM_MODEL_BASED,
     "reach both arms model-based": REACH_BOTH_ARMS_MODEL_BASED,
+    "reach both arms, dense reward, model-based": REACH_BOTH_ARMS_DENSE_MODEL_BASED,
     "stacking cloned": STACKING_CLONED,
     "Pendulum-v1": PENDULUM,
     "Pendulum-v1 model-based": PENDULUM_MODEL_BASED,
@@ -255,7 +260,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     "Reacher-v5 model-based": REACHER_MODEL_BASED,
 }
 _ONE_ARM = ("Right", "RightRandom", "RightStandIn", "RightTargets")
-_BOTH_ARMS = ("", "Dense", "Targets", "DenseTargets")
+_BOTH_ARMS = ("", "Targets")
 _CLONABLE = ("EndPoint", "RandomEndPoint", "3EndPoint", "3RandomEndPoint", "DenseEndPoint")
 # env id -> {"model-free": preset, "model-based": preset}: the task's own
 TASKS: dict[str, dict[str, str]] = {
@@ -264,6 +269,10 @@ TASKS: dict[str, dict[str, str]] = {
     "drrl/CartPoleSwingUpPixels-v0": {"model-based": "swing-up pixels model-based"},
     **{f"drrl/BaxterReach{arms}-v0": {"model-based": "reach one arm model-based"} for arms in _ONE_ARM},
     **{f"drrl/BaxterReach{arms}-v0": {"model-based": "reach both arms model-based"} for arms in _BOTH_ARMS},
+    **{
+        f"drrl/BaxterReach{arms}-v0": {"model-based": "reach both arms, dense reward, model-based"}
+        for arms in ("Dense", "DenseTargets")
+    },
     **{f"drrl/BaxterStack{task}-v0": {"model-free": "stacking cloned"} for task in _CLONABLE},
     "Pendulum-v1": {"model-free": "Pendulum-v1", "model-based": "Pendulum-v1 model-based"},
     "Hopper-v5": {"model-free": "Hopper-v5"},
