@@ -35,7 +35,7 @@ VERDICT = re.compile(r"^([a-z0-9-]+):\s+(yes|no)$", re.MULTILINE)
 def one_task(task: str, core: int, folder: Path, seed: int, timeout: float) -> dict:
     """Train ``task`` with its defaults, evaluate the best measured centre; the row of the table."""
     drrl = Path(sys.executable).with_name("drrl")
-    out = folder / task
+    out = folder / f"{task.replace('/', '-')}-{seed}"
     pin = ["taskset", "-c", str(core)]
     row: dict = {"task": task, "seed": seed}
     start = time.perf_counter()
@@ -118,6 +118,25 @@ def table(results: dict) -> str:
     return "\n".join(lines)
 
 
+def recorded(path: Path, row: dict, first: bool) -> dict:
+    """The results file with ``row`` written into it at once (a run cut short loses nothing): the rows of other
+    tasks kept, the task's old rows replaced by this invocation's first row of it."""
+    from drrl.envs.registry import aliases
+
+    before = json.loads(path.read_text())["rows"] if path.exists() else []
+    kept = [old for old in before if old["task"] != row["task"] or not first]
+    order = {task: place for place, task in enumerate(aliases())}
+    results = {
+        "machine": f"{cpu()}, {os.cpu_count()} cores, Python {platform.python_version()}, each run pinned to one core",
+        "command": "python benchmarks/task_defaults.py [--tasks TASKS] [--seeds SEEDS] --timeout T; each row has its "
+        "date and timeout",
+        "rows": sorted([*kept, row], key=lambda row: (order.get(row["task"], len(order)), row["seed"])),
+    }
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(json.dumps(results, indent=1) + "\n")
+    return results
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", help="comma-separated drrl tasks  [default: every registered one]")
@@ -139,25 +158,15 @@ def main() -> None:
     tasks = args.tasks.split(",") if args.tasks else list(aliases())
     first, _, last = args.seeds.partition("-")
     chosen = range(int(first), int(last) + 1) if last else [int(seed) for seed in args.seeds.split(",")]
+    written: set[str] = set()
     measured = {"date": date.today().isoformat(), "timeout": args.timeout}
-    rows = []
     with tempfile.TemporaryDirectory() as folder:
         for task in tasks:
             for seed in chosen:
-                rows.append({**one_task(task, args.core, Path(folder), seed, args.timeout), **measured})
-                print(json.dumps(rows[-1]), flush=True)
-    # the rows of tasks measured before (another --tasks) are kept; a task's new rows replace its old ones
-    before = json.loads(args.results.read_text())["rows"] if args.results.exists() else []
-    order = {task: place for place, task in enumerate(aliases())}
-    kept = [row for row in before if row["task"] not in tasks]
-    results = {
-        "machine": f"{cpu()}, {os.cpu_count()} cores, Python {platform.python_version()}, each run pinned to one core",
-        "command": "python benchmarks/task_defaults.py [--tasks TASKS] [--seeds SEEDS] --timeout T; each row has its "
-        "date and timeout",
-        "rows": sorted([*kept, *rows], key=lambda row: (order.get(row["task"], len(order)), row["seed"])),
-    }
-    args.results.parent.mkdir(exist_ok=True)
-    args.results.write_text(json.dumps(results, indent=1) + "\n")
+                row = {**one_task(task, args.core, Path(folder), seed, args.timeout), **measured}
+                print(json.dumps(row), flush=True)
+                results = recorded(args.results, row, first=task not in written)
+                written.add(task)
     print(table(results))
 
 
