@@ -1,5 +1,7 @@
-"""Benchmark scripts that read run folders read what runs write (their figures are measured in BENCHMARKS.md)."""
+"""Benchmark scripts read what runs write, and BENCHMARKS.md shows what their results files hold."""
 
+import json
+import runpy
 import subprocess
 import sys
 from pathlib import Path
@@ -47,3 +49,10 @@ def test_world_models_fits_on_one_runs_episodes_and_measures_on_anothers(tmp_pat
     row = next(line for line in result.stdout.splitlines() if line.startswith("| lstm 8 |"))
     errors = [float(cell) for cell in row.strip("| ").split(" | ")[2:]]
     assert len(errors) == 5 and all(error > 0 for error in errors)
+
+
+@pytest.mark.parametrize("results", ["task_defaults.json", "standard_envs.json"])
+def test_benchmarks_md_shows_each_task_table_as_its_results_file_holds_it(results):
+    table = runpy.run_path(str(BENCHMARKS / "task_defaults.py"))["table"]
+    measured = json.loads((BENCHMARKS / "results" / results).read_text())
+    assert table(measured) in (BENCHMARKS.parent / "BENCHMARKS.md").read_text()

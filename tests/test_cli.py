@@ -194,7 +194,7 @@ def test_eval_gives_a_verdict_on_any_gymnasium_env_and_calls_out_a_farmed_alive_
     result, out = train(tmp_path, "Blackjack-v1", *SMALL)  # no reward_threshold, and no level of drrl's
     assert result.exit_code == 0, result.output
     evaluated = CliRunner().invoke(main, ["eval", str(out), "--episodes", "4"])
-    assert evaluated.exit_code == 0 and "verdict:      none (Blackjack-v1 has no reward_threshold" in evaluated.output
+    assert evaluated.exit_code == 0 and "verdict:      none (it has no reward_threshold" in evaluated.output
 
 
 def test_the_settings_measured_for_gymnasiums_tasks_are_their_defaults_and_valid():

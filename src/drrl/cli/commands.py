@@ -16,7 +16,7 @@ from drrl.cli.settings import FLAGS, given_settings, settings_options, with_file
 from drrl.cli.settings import show_settings as show_settings_of
 from drrl.envs.batch import make_batch_env
 from drrl.envs.gymnasium_tasks import alive_bonus_note
-from drrl.envs.registry import aliases, lookup
+from drrl.envs.registry import aliases, is_own, lookup
 from drrl.rollout import BACKENDS, NonFiniteOutput
 from drrl.runs import RunFolder, check_writable
 from drrl.settings import TrainConfig, describe_errors, load_config_file
@@ -399,10 +399,13 @@ def eval_command(run_path: Path, episodes: int, seed: int, final: bool, env_name
     for name, ok in verdict.items():
         click.echo(f"{name.replace('_', '-') + ':':14}{'yes' if ok else 'no'}")
     if not verdict:
-        click.echo(
-            f"verdict:      none ({entry.env_id} has no reward_threshold and drrl knows no level for it: set the "
-            "return beside a published one)"
+        why = (
+            "its shaped reward has no level; the same task with a sparse reward has a verdict (drrl eval RUN --env "
+            "TASK measures this policy there)"
+            if is_own(entry.env_id)
+            else "it has no reward_threshold and drrl knows no level for it: set the return beside a published one"
         )
+        click.echo(f"verdict:      none ({why})")
     if entry.explain is not None:
         click.echo(entry.explain(result.episode_returns, result.terminated))
     farming = alive_bonus_note(entry.env_id, result.episode_returns, result.episode_steps)
