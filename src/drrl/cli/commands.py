@@ -22,7 +22,6 @@ from drrl.runs import RunFolder, check_writable
 from drrl.settings import TrainConfig, describe_errors, load_config_file
 from drrl.settings.flat import flattened
 from drrl.settings.presets import not_learned, task_preset, task_settings
-from drrl.settings.presets import suggested as suggested_settings
 from drrl.streams import Stream, derive_seed
 from drrl.training.loop import Counters, Setup, measure, one_thread, run, sigterm_as_interrupt, solved
 from drrl.training.model_based import ModelDiverged
@@ -255,13 +254,10 @@ def overridden_defaults(setup: Setup) -> dict:
 
 
 def advice_after_a_miss(setup: Setup) -> str:
-    """What to try after a run whose centre met none of the task's criteria: the settings that suit the task (the
-    entry's own, else the env's defaults the run set otherwise), or with none, what most often helps a run of its
-    kind; never a setting the run already had; after a model-free run, a model-based one where drrl has model-based
-    settings for the env."""
-    flat = flattened(setup.config)
-    suitable = {name: value for name, value in suggested_settings(setup.config.env).items() if flat.get(name) != value}
-    suggested = suitable or overridden_defaults(setup)
+    """What to try after a run whose centre met none of the task's criteria: the task's own settings the run set
+    otherwise, or with none, what most often helps a run of its kind (never a setting the run already had); after a
+    model-free run, a model-based one where drrl has model-based settings for the env."""
+    suggested = overridden_defaults(setup)
     advice = generic_advice(setup.world.kind, setup.config.policy)
     if suggested:
         advice = "settings that suit it: " + " ".join(

@@ -113,7 +113,7 @@ def settings_options(command):
             default=None,
             help="Model-based PGPE: fit a world model to real episodes and search in it (its settings: "
             "model_based.*; popsize and episodes-per-candidate then count imagined episodes), or PGPE on the env "
-            "alone  [default: the task's (model-based for the swing-up, the Baxter reaches and the tasks seen "
+            "alone  [default: the task's (model-based for the swing-up, most Baxter reaches and the tasks seen "
             "as frames), else model-free]",
         ),
         click.option(
