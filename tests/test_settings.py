@@ -192,3 +192,5 @@ def test_a_task_no_method_learns_yet_says_so_and_names_the_closest_before_any_wo
         result.output
     )
     assert not_learned("baxter-stack-end-point") is None and not_learned("cartpole") is None
+    joint_targets = not_learned("baxter-reach-right-targets") or ""
+    assert "closest is baxter-reach-right, the same reach with velocity actions" in joint_targets
