@@ -178,6 +178,10 @@ def test_a_task_s_default_kind_of_run_gives_way_to_the_one_asked_for(tmp_path):
     file.write_text('env = "cartpole"\n[model_based]\nensemble_size = 2\n')
     assert kind("--config", str(file)) == "settings of a model-based run on cartpole:"
     assert kind("--config", str(file), "--model-free") == "settings of a model-free run on cartpole:"
+    # a setting only model-free runs have (a file written for one, a flag) keeps a model-based task's run model-free
+    assert kind("baxter-reach", "--observation-norm") == "settings of a model-free run on baxter-reach:"
+    both_arms = SOURCE.parents[1] / "configs" / "baxter-reach-both-arms.toml"  # no world-model table, a curriculum
+    assert kind("--config", str(both_arms)) == "settings of a model-free run on baxter-reach-targets:"
     refused = CliRunner().invoke(main, ["train", "baxter-reach", "--model-free", "--ensemble", "3"])
     assert (
         refused.exit_code == 2 and "--ensemble: settings of a model-based run only; drop --model-free" in refused.output

@@ -184,13 +184,22 @@ def with_file(file_settings: dict, given: dict) -> dict:
 
 def with_run_kind(file_settings: dict, given: dict, model_based: bool | None) -> dict:
     """``given`` with a model_based table where the run is model-based: asked for (--model-based), or neither asked
-    against (--model-free) nor a file's table, and the task's default kind (``presets.default_kind``). A world
+    against (--model-free) nor a file's table, and the task's default kind (``presets.default_kind``) unless a file
+    or flag gives a setting only model-free runs have (a file written for a model-free run stays one). A world
     model's options on a model-free run are refused in one line."""
     user = with_file(file_settings, given)
     asked_against = model_based is False
     if model_based is None:
+        search = user.get("search", "pgpe")
+        model_free_only = any(
+            FLAT[name].belongs_to("model-free", search) and not FLAT[name].belongs_to("model-based", search)
+            for name in user
+            if name in FLAT
+        )
         model_based = isinstance(file_settings.get(TABLE), dict) or (
-            user.get("search") not in POLICY_GRADIENTS and default_kind(user.get("env", "cartpole")) == "model-based"
+            search not in POLICY_GRADIENTS
+            and not model_free_only
+            and default_kind(user.get("env", "cartpole")) == "model-based"
         )
     options = given.get(TABLE)
     if options and not model_based:
