@@ -197,11 +197,6 @@ PENDULUM_MODEL_BASED = {
 # seeds 0-2 reached 3,032, 3,323 and 2,928 in 3,200 episodes. Not a rule for every locomotion task: Walker2d-v5 with
 # the same shift learned to fall at once (4.3; 2,023 without).
 HOPPER = {"reward_shift": 1.0}
-# Once every candidate holds the poles up, the ranks still tell tiny differences in the distance and velocity terms
-# apart, and ClipUp's full steps on them carry the centre off to policies that fall from the edge of the reset noise
-# (measured centres of 9,360 sliding back to 6,200-9,175 within tens to hundreds of generations). A quarter of the
-# default step, three times the episodes for the slower climb, and an end before that drift, once two measured
-# centres in a row are solved (the first one at the level may be fragile).
 # One random start an episode ranks MountainCar-v0's candidates poorly: with one episode each, seed 0's best centre
 # came at generation 10 (-115.5 on fresh episodes) and none later beat it in 32,000 episodes; with ten each, seeds
 # 0-4 solved it (-106.6 to -108.3 on fresh episodes) in 8-12 s.
@@ -218,6 +213,11 @@ WALKER = {"budget": 6400}
 # A linear arm ends near -36 (3,200 or 16,000 episodes); a tanh MLP at -31.5 after 16,000, -29.7 after 48,000
 # (12 minutes, seed 0).
 PUSHER = {"policy": "mlp:32", "budget": 48000}
+# Once every candidate holds the poles up, the ranks still tell tiny differences in the distance and velocity terms
+# apart, and ClipUp's full steps on them carry the centre off to policies that fall from the edge of the reset noise
+# (measured centres of 9,360 sliding back to 6,200-9,175 within tens to hundreds of generations). A quarter of the
+# default step, three times the episodes for the slower climb, and an end before that drift, once two measured
+# centres in a row are solved (the first one at the level may be fragile).
 INVERTED_DOUBLE_PENDULUM = {"center_lr": 0.005, "budget": 9600, "stop_when_solved": True, "solved_in_a_row": 2}
 # A linear policy ends near -6.8: the torques that bring the fingertip to the target depend on the arm's angles
 # times the fingertip's offset, which a tanh MLP can form and a linear map cannot. One random target an episode ranks
