@@ -109,9 +109,14 @@ def test_a_model_based_iteration_says_what_it_is_doing_while_it_runs():
     first = [doing for done, doing in told if done == 0]  # told while iteration 1 runs
     assert first[:2] == ["collecting real episodes", "fitting the world model"]
     assert first[-1] == "measuring the centre on 5 fresh episodes"
-    assert first[2].startswith("searching in the model: generation 1 of at most 3, ") and first[2].endswith(
-        "s left at most"
-    )
+    fitting = [doing for doing in first if doing.startswith("fitting the world model: update ")]
+    assert [doing.split(",")[0] for doing in fitting] == [
+        f"fitting the world model: update {updates} of at most 30" for updates in (10, 20, 30)
+    ]
+    assert all(doing.endswith("s left at most") for doing in fitting)
+    searching = first[2 + len(fitting)]
+    assert searching.startswith("searching in the model: generation 1 of at most 3, ")
+    assert searching.endswith("s left at most")
     second = [doing for done, doing in told if done == 1]
     assert second[1].startswith("fitting the world model (the last fit took ")
 
@@ -146,8 +151,8 @@ def test_a_fit_whose_held_out_loss_jumps_is_done_again_from_new_weights(monkeypa
     from new weights with the first fit's updates, and that fit, far better, is kept and reported."""
     real_fit, calls, inflated = drrl.models.trainer.fit_model, [], []
 
-    def fit(model, buffer, settings, seed, split_seed, mirror):
-        reports = real_fit(model, buffer, settings, seed, split_seed, mirror)
+    def fit(model, buffer, settings, seed, split_seed, mirror, progress=None):
+        reports = real_fit(model, buffer, settings, seed, split_seed, mirror, progress)
         calls.append(settings.max_updates)
         if len(calls) == 2:
             reports = [dataclasses.replace(report, valid_loss=report.valid_loss * 1e6) for report in reports]
@@ -323,7 +328,7 @@ def test_mirror_episodes_fit_the_model_to_mirror_images_and_imagine_from_mirrore
     mirrors, fit_model = [], drrl.models.trainer.fit_model
 
     def recording(*args):
-        mirrors.append(args[-1])
+        mirrors.append(args[5])  # (model, buffer, settings, seed, split_seed, mirror, progress)
         return fit_model(*args)
 
     monkeypatch.setattr(drrl.models.trainer, "fit_model", recording)

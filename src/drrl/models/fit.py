@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import cast
 
@@ -102,6 +103,9 @@ def make_model_optimizer(name: str, params, lr: float, momentum: float = 0.9) ->
     raise ValueError(f"unknown model optimizer {name!r}; choose one of: {', '.join(MODEL_OPTIMIZERS)}")
 
 
+REPORT_EVERY = 10  # updates between two reports of a fit's progress
+
+
 def fit(
     model: WorldModel,
     buffer: EpisodeBuffer,
@@ -109,6 +113,7 @@ def fit(
     seed: int = 0,
     split_seed: int | None = None,
     mirror: Mirror | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[FitReport]:
     """Train ``model``'s K members on ``buffer`` in place, side by side, each with its own held-out episodes,
     normalisation and minibatches; returns a report per member. Raises if the data cannot be unfolded.
@@ -118,7 +123,8 @@ def fit(
     task's reflection symmetry, every episode is also fitted (or held out) as its mirror image, beside itself.
 
     A member whose validation loss has not improved for ``patience`` validations keeps its best weights; the fit
-    stops when every member has, or after ``max_updates``.
+    stops when every member has, or after ``max_updates``. ``progress(updates, max_updates)`` is told every
+    ``REPORT_EVERY`` updates.
     """
     buffer.check_unfolding(settings.unfold, settings.overshoot)
     splits = [split_episodes(buffer, settings, offset) for offset in split_offsets(split_seed, seed, len(model))]
@@ -174,6 +180,8 @@ def fit(
         if not torch.isfinite(loss).all():
             stop = "diverged"
             break
+        if progress is not None and updates % REPORT_EVERY == 0:
+            progress(updates, settings.max_updates)
         if updates % settings.validate_every == 0:
             current = validation_losses()
             if not torch.isfinite(current).all():

@@ -25,7 +25,7 @@ from drrl.models.recurrent import NETWORK_KINDS, WorldModel
 
 LEAST_SQUARES = {"linear": LinearModel, "polynomial": PolynomialModel}  # the kinds fitted in closed form
 MODEL_KINDS = (*NETWORK_KINDS, *LEAST_SQUARES)
-# (model, buffer, settings, seed, split_seed, mirror) -> a report per member, the model fitted in place
+# (model, buffer, settings, seed, split_seed, mirror, progress) -> a report per member, the model fitted in place
 Fitter = Callable[..., list[FitReport]]
 
 
@@ -36,9 +36,10 @@ def fit_least_squares(
     seed: int = 0,
     split_seed: int | None = None,
     mirror: Mirror | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[FitReport]:
     """``fit_linear``, whose held-out episodes are drawn from ``seed`` at every fit, as each fit starts from
-    nothing (``split_seed`` places only the recurrent models' held-out episodes)."""
+    nothing (``split_seed`` places only the recurrent models' held-out episodes); one solve, so no ``progress``."""
     return fit_linear(model, buffer, settings, seed, mirror)
 
 
@@ -81,9 +82,11 @@ def fit_model(
     seed: int = 0,
     split_seed: int | None = None,
     mirror: Mirror | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[FitReport]:
     """Fit ``model`` in place to ``buffer`` (and the episodes' mirror images, where ``mirror`` gives the task's
     reflection symmetry) by its kind's fitter (``FITTERS``); a report per member. A recurrent model's held-out
     episodes are placed by ``split_seed`` (``drrl.models.fit.split_episodes``), the linear model's drawn from
-    ``seed`` at every fit (``drrl.models.linear.split_at_random``)."""
-    return FITTERS[type(model)](model, buffer, settings, seed, split_seed, mirror)
+    ``seed`` at every fit (``drrl.models.linear.split_at_random``). ``progress(updates, most)`` is told as a
+    gradient fit goes on."""
+    return FITTERS[type(model)](model, buffer, settings, seed, split_seed, mirror, progress)

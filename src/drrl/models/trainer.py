@@ -10,6 +10,7 @@ its held-out losses compare from fit to fit. Beyond the thesis: a warm-started f
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,12 +59,12 @@ class ModelTrainer:
         self.split_seed = derive_seed(seed, 0, Stream.FITTING)  # one for every fit: episodes held out stay so
         self.last_loss: float | None = None  # the last fit's held-out loss, where it held episodes out
 
-    def fit(self, buffer: EpisodeBuffer, iteration: int) -> Fitted:
+    def fit(self, buffer: EpisodeBuffer, iteration: int, progress: Callable[[int, int], None] | None = None) -> Fitted:
         """Iteration ``iteration``'s fit to ``buffer``, done again afresh if its held-out loss jumped;
-        ``ModelDiverged`` if the model's loss turned non-finite."""
+        ``ModelDiverged`` if the model's loss turned non-finite. ``progress(updates, most)`` is told as it goes."""
         settings = fitting_settings(self.first if iteration == 1 else self.later, buffer)
         seed = derive_seed(self.seed, iteration, Stream.FITTING)
-        reports = fit_model(self.model, buffer, settings, seed, self.split_seed, self.mirror)
+        reports = fit_model(self.model, buffer, settings, seed, self.split_seed, self.mirror, progress)
         if any(report.stop == "diverged" for report in reports):
             raise ModelDiverged(f"iteration {iteration}: the world model's loss turned non-finite")
         jumped = self.last_loss is not None and held_out_loss(reports) > LOSS_JUMP * self.last_loss

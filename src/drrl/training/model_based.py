@@ -136,7 +136,12 @@ class ModelBased(World[Search]):
         setup.report(f"fitting the world model{'' if last is None else f' (the last fit took {last:.0f} s)'}")
         fit_start = time.perf_counter()
         seeing = self.remember(episodes, iteration)
-        fitted = self.trainer.fit(self.buffer, iteration)
+
+        def fitting(updates: int, most: int) -> None:
+            left = (time.perf_counter() - fit_start) / updates * (most - updates)
+            setup.report(f"fitting the world model: update {updates} of at most {most}, {left:.0f} s left at most")
+
+        fitted = self.trainer.fit(self.buffer, iteration, fitting)
         self.learn_outcome(iteration)
         search_start = time.perf_counter()
         searched = self.imagination.improve(search, counters, iteration, setup.report)
