@@ -138,8 +138,7 @@ class ModelBased(World[Search]):
         seeing = self.remember(episodes, iteration)
 
         def fitting(updates: int, most: int) -> None:
-            left = (time.perf_counter() - fit_start) / updates * (most - updates)
-            setup.report(f"fitting the world model: update {updates} of at most {most}, {left:.0f} s left at most")
+            setup.report(f"fitting the world model: {progress_of('update', updates, most, fit_start)}")
 
         fitted = self.trainer.fit(self.buffer, iteration, fitting)
         self.learn_outcome(iteration)
@@ -357,8 +356,7 @@ class InModelSearch:
             best, since_best = (mean, 0) if mean > best else (best, since_best + 1)
             if since_best >= self.settings.patience:
                 break
-            left = (time.perf_counter() - start) / generation * (most - generation)
-            report(f"searching in the model: generation {generation} of at most {most}, {left:.0f} s left at most")
+            report(f"searching in the model: {progress_of('generation', generation, most, start)}")
         return generation, tied
 
     def imagine_centers(self, centers: torch.Tensor, iteration: int) -> torch.Tensor:
@@ -509,3 +507,10 @@ def collect(
         return recorder.episodes(), evaluation
     finally:
         env.close()
+
+
+def progress_of(unit: str, done: int, most: int, start: float) -> str:
+    """``done`` of at most ``most`` steps of a phase that began at ``start`` (``time.perf_counter``), and the time
+    the rest would take at most, at the pace so far."""
+    left = (time.perf_counter() - start) / done * (most - done)
+    return f"{unit} {done} of at most {most}, {left:.0f} s left at most"
