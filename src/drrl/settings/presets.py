@@ -283,6 +283,7 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 _ONE_ARM = ("Right", "RightRandom", "RightStandIn", "RightTargets")
 _BOTH_ARMS = ("", "Targets")
+_BOTH_ARMS_DENSE = ("Dense", "DenseTargets")
 _CLONABLE = ("EndPoint", "RandomEndPoint", "3EndPoint", "3RandomEndPoint", "DenseEndPoint")
 # env id -> {"model-free": preset, "model-based": preset}: the task's own
 TASKS: dict[str, dict[str, str]] = {
@@ -294,7 +295,7 @@ TASKS: dict[str, dict[str, str]] = {
     **{f"drrl/BaxterReach{arms}-v0": {"model-based": "reach both arms model-based"} for arms in _BOTH_ARMS},
     **{
         f"drrl/BaxterReach{arms}-v0": {"model-based": "reach both arms, dense reward, model-based"}
-        for arms in ("Dense", "DenseTargets")
+        for arms in _BOTH_ARMS_DENSE
     },
     **{f"drrl/BaxterStack{task}-v0": {"model-free": "stacking cloned"} for task in _CLONABLE},
     "Pendulum-v1": {"model-free": "Pendulum-v1", "model-based": "Pendulum-v1 model-based"},
